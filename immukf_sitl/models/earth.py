@@ -1,0 +1,199 @@
+"""The WGS-84 earth: geodetic <-> local NED, normal gravity, ISA air density.
+
+Geodesy is pymap3d's (WGS-84 ellipsoid); gravity is the WGS-84 normal gravity of NIMA TR8350.2
+(3rd ed., 2000, ch. 4); density is the ISA troposphere (ICAO Doc 7488 / U.S. Standard
+Atmosphere 1976), which JSBSim's standard atmosphere also follows, so the filter should use it
+at its altitude rather than a constant sea-level value.
+
+Conventions (NED axes, units, component axis first): ``docs/conventions.md``.
+"""
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import pymap3d
+from numpy.typing import ArrayLike
+
+__all__ = [
+    "WGS84",
+    "NedOrigin",
+    "geodetic_to_ned",
+    "isa_density_kgpm3",
+    "ned_to_geodetic",
+    "normal_gravity_mps2",
+]
+
+#: The WGS-84 ellipsoid as pymap3d knows it.
+WGS84 = pymap3d.Ellipsoid.from_name("wgs84")
+
+# WGS-84 defining and derived constants, NIMA TR8350.2 tables 3.1, 3.3 and 3.4.
+_A_M = 6378137.0  # semi-major axis a
+_F = 1.0 / 298.257223563  # flattening f
+_GAMMA_E_MPS2 = 9.7803253359  # normal gravity at the equator
+_K_SOMIGLIANA = 0.00193185265241  # k = (b gamma_p) / (a gamma_e) - 1
+_E2 = 0.00669437999014  # first eccentricity squared e^2
+_M_RATIO = 0.00344978650684  # m = omega^2 a^2 b / GM
+
+# ISA troposphere (ICAO Doc 7488; U.S. Standard Atmosphere 1976).
+_T0_K = 288.15  # sea-level temperature
+_RHO0_KGPM3 = 1.225  # sea-level density
+_LAPSE_KPM = 0.0065  # temperature lapse rate
+_G0_MPS2 = 9.80665  # standard gravity
+_R_AIR_JPKGK = 287.05287  # specific gas constant of dry air
+_R_EARTH_GEOPOTENTIAL_M = 6356766.0  # earth radius of the geopotential conversion (USSA 1976)
+_TROPOPAUSE_M = 11000.0
+_DENSITY_EXPONENT = _G0_MPS2 / (_R_AIR_JPKGK * _LAPSE_KPM) - 1.0  # 4.2559
+
+
+@dataclass(frozen=True)
+class NedOrigin:
+    """Geodetic origin of the local NED frame (WGS-84).
+
+    Parameters
+    ----------
+    lat_deg, lon_deg : float
+        Geodetic latitude and longitude of the origin (deg).
+    alt_m : float
+        Height of the origin above the ellipsoid (m).
+    """
+
+    lat_deg: float
+    lon_deg: float
+    alt_m: float
+
+    def __post_init__(self) -> None:
+        for name in ("lat_deg", "lon_deg", "alt_m"):
+            if not math.isfinite(getattr(self, name)):
+                raise ValueError(f"NedOrigin.{name}: expected a finite number")
+        if abs(self.lat_deg) > 90.0:
+            raise ValueError(f"NedOrigin.lat_deg: expected |lat| <= 90, got {self.lat_deg}")
+
+    def to_ned(self, lat_deg: ArrayLike, lon_deg: ArrayLike, alt_m: ArrayLike) -> np.ndarray:
+        """Geodetic -> NED about this origin; see :func:`geodetic_to_ned`."""
+        return geodetic_to_ned(lat_deg, lon_deg, alt_m, self)
+
+    def to_geodetic(self, ned_m: ArrayLike) -> np.ndarray:
+        """NED about this origin -> geodetic; see :func:`ned_to_geodetic`."""
+        return ned_to_geodetic(ned_m, self)
+
+
+def geodetic_to_ned(
+    lat_deg: ArrayLike, lon_deg: ArrayLike, alt_m: ArrayLike, origin: NedOrigin
+) -> np.ndarray:
+    """WGS-84 geodetic coordinates to local NED about an origin (pymap3d).
+
+    Parameters
+    ----------
+    lat_deg, lon_deg : array_like
+        Geodetic latitude and longitude (deg), broadcastable shapes.
+    alt_m : array_like
+        Height above the ellipsoid (m).
+    origin : NedOrigin
+        Origin of the NED frame.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(3, *batch)`` array ``[north, east, down]`` (m).
+    """
+    n, e, d = pymap3d.geodetic2ned(
+        np.asarray(lat_deg, dtype=float),
+        np.asarray(lon_deg, dtype=float),
+        np.asarray(alt_m, dtype=float),
+        origin.lat_deg,
+        origin.lon_deg,
+        origin.alt_m,
+        ell=WGS84,
+        deg=True,
+    )
+    return np.stack(np.broadcast_arrays(n, e, d))
+
+
+def ned_to_geodetic(ned_m: ArrayLike, origin: NedOrigin) -> np.ndarray:
+    """Local NED about an origin to WGS-84 geodetic coordinates (pymap3d).
+
+    Parameters
+    ----------
+    ned_m : array_like
+        ``(3, *batch)`` positions ``[north, east, down]`` (m).
+    origin : NedOrigin
+        Origin of the NED frame.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(3, *batch)`` array ``[lat_deg, lon_deg, alt_m]`` (height above the ellipsoid).
+    """
+    ned = np.asarray(ned_m, dtype=float)
+    if ned.shape[:1] != (3,):
+        raise ValueError(f"ned_m: expected shape (3, ...), got {ned.shape}")
+    lat, lon, alt = pymap3d.ned2geodetic(
+        ned[0],
+        ned[1],
+        ned[2],
+        origin.lat_deg,
+        origin.lon_deg,
+        origin.alt_m,
+        ell=WGS84,
+        deg=True,
+    )
+    return np.stack(np.broadcast_arrays(lat, lon, alt))
+
+
+def normal_gravity_mps2(lat_deg: ArrayLike, alt_m: ArrayLike = 0.0) -> np.ndarray:
+    """WGS-84 normal gravity magnitude at a geodetic latitude and height.
+
+    Somigliana's closed formula on the ellipsoid (NIMA TR8350.2 eq. 4-1) with the
+    second-order free-air height correction (TR8350.2 eq. 4-3), valid for small heights
+    (aircraft altitudes) above the ellipsoid.
+
+    Parameters
+    ----------
+    lat_deg : array_like
+        Geodetic latitude (deg).
+    alt_m : array_like, optional
+        Height above the ellipsoid (m), default 0.
+
+    Returns
+    -------
+    numpy.ndarray
+        Normal gravity (m/s^2), the broadcast shape of the inputs; it points along the
+        ellipsoid normal (NED "down").
+    """
+    sin2 = np.sin(np.radians(np.asarray(lat_deg, dtype=float))) ** 2
+    h = np.asarray(alt_m, dtype=float)
+    # TR8350.2 eq. (4-1): Somigliana
+    gamma = _GAMMA_E_MPS2 * (1.0 + _K_SOMIGLIANA * sin2) / np.sqrt(1.0 - _E2 * sin2)
+    # TR8350.2 eq. (4-3): free-air correction to second order in h / a
+    scale = 1.0 - 2.0 / _A_M * (1.0 + _F + _M_RATIO - 2.0 * _F * sin2) * h + 3.0 / _A_M**2 * h**2
+    return gamma * scale
+
+
+def isa_density_kgpm3(alt_m: ArrayLike) -> np.ndarray:
+    """ISA troposphere air density at a geometric altitude.
+
+    ``rho = rho0 (T / T0)^(g0 / (R L) - 1)`` with ``T = T0 - L H``, where ``H`` is the
+    geopotential altitude ``r0 h / (r0 + h)`` (U.S. Standard Atmosphere 1976, eq. 18 and 42).
+
+    Parameters
+    ----------
+    alt_m : array_like
+        Geometric altitude above mean sea level (m), within the troposphere (below 11 km).
+
+    Returns
+    -------
+    numpy.ndarray
+        Density (kg/m^3), the shape of ``alt_m``.
+
+    Raises
+    ------
+    ValueError
+        If an altitude lies at or above the tropopause (11 km), where the formula is wrong.
+    """
+    h = np.asarray(alt_m, dtype=float)
+    geopotential_m = _R_EARTH_GEOPOTENTIAL_M * h / (_R_EARTH_GEOPOTENTIAL_M + h)
+    if np.any(geopotential_m >= _TROPOPAUSE_M):
+        raise ValueError("isa_density_kgpm3: altitude beyond the troposphere (11 km)")
+    theta = 1.0 - _LAPSE_KPM * geopotential_m / _T0_K
+    return _RHO0_KGPM3 * theta**_DENSITY_EXPONENT
