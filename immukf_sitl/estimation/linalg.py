@@ -1,0 +1,87 @@
+"""Guarded linear algebra for batched covariance matrices."""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.linalg
+
+from immukf_sitl.estimation.diagnostics import FilterDiagnostics
+
+#: Relative size of the first diagonal jitter (times the mean diagonal); grows by 100x per try.
+JITTER_START = 1e-12
+JITTER_TRIES = 4
+#: Eigenvalue floor, relative to the largest eigenvalue, for the last-resort repair.
+EIGEN_FLOOR_REL = 1e-12
+EIGEN_FLOOR_ABS = 1e-300
+
+
+def symmetrise(cov: np.ndarray, diag: FilterDiagnostics | None = None) -> np.ndarray:
+    """Return ``(P + P') / 2`` for a stack of matrices, counting each in ``diag.symmetrised``."""
+    if diag is not None:
+        diag.symmetrised += cov.shape[0] if cov.ndim == 3 else 1
+    return 0.5 * (cov + np.swapaxes(cov, -1, -2))
+
+
+def robust_cholesky(cov: np.ndarray, diag: FilterDiagnostics) -> np.ndarray:
+    """Lower Cholesky factors of a stack ``(B, n, n)`` of symmetric matrices; never raises.
+
+    A matrix that is not numerically positive definite is repaired: first by adding a growing
+    diagonal jitter (counted in ``diag.cholesky_jitter``), then by flooring its eigenvalues
+    (``diag.cholesky_eigen_floor``). Non-finite entries are replaced by the eigen floor's result
+    of the identity scaled to the finite diagonal, so the filter keeps running.
+    """
+    try:
+        return np.linalg.cholesky(cov)
+    except np.linalg.LinAlgError:
+        pass
+    out = np.empty_like(cov)
+    for b in range(cov.shape[0]):
+        out[b] = _repair_one(cov[b], diag)
+    return out
+
+
+def _repair_one(cov: np.ndarray, diag: FilterDiagnostics) -> np.ndarray:
+    try:
+        return np.linalg.cholesky(cov)
+    except np.linalg.LinAlgError:
+        pass
+    n = cov.shape[0]
+    if np.all(np.isfinite(cov)):
+        scale = max(float(np.mean(np.abs(np.diag(cov)))), EIGEN_FLOOR_ABS)
+        jitter = JITTER_START * scale
+        for _ in range(JITTER_TRIES):
+            try:
+                factor = np.linalg.cholesky(cov + jitter * np.eye(n))
+            except np.linalg.LinAlgError:
+                jitter *= 100.0
+                continue
+            diag.cholesky_jitter += 1
+            return factor
+        sym = 0.5 * (cov + cov.T)
+    else:
+        finite_diag = np.where(np.isfinite(np.diag(cov)), np.abs(np.diag(cov)), 1.0)
+        sym = np.diag(finite_diag)
+    diag.cholesky_eigen_floor += 1
+    eigval, eigvec = np.linalg.eigh(sym)
+    floor = max(EIGEN_FLOOR_REL * float(np.max(np.abs(eigval))), EIGEN_FLOOR_ABS)
+    eigval = np.maximum(eigval, floor)
+    repaired = (eigvec * eigval) @ eigvec.T
+    return np.linalg.cholesky(0.5 * (repaired + repaired.T))
+
+
+def cholesky_solve(factor: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    """Solve ``(L L') X = rhs`` for stacks ``factor (B, n, n)`` and ``rhs (B, n, m)``."""
+    half = scipy.linalg.solve_triangular(factor, rhs, lower=True, check_finite=False)
+    return scipy.linalg.solve_triangular(factor, half, lower=True, trans="T", check_finite=False)
+
+
+def block_diagonal(blocks: list[np.ndarray], batch: int) -> np.ndarray:
+    """Stack of block-diagonal matrices; each block is ``(n_i, n_i)`` or ``(B, n_i, n_i)``."""
+    size = sum(b.shape[-1] for b in blocks)
+    out = np.zeros((batch, size, size))
+    start = 0
+    for block in blocks:
+        n = block.shape[-1]
+        out[:, start : start + n, start : start + n] = block
+        start += n
+    return out

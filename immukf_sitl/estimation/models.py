@@ -1,0 +1,137 @@
+"""What a filter needs to know about a system: process and measurement models.
+
+Every function takes the component axis first and any batch axes after it (see
+``docs/conventions.md``): a state ``x`` of shape ``(nx, *batch)`` and noise of shape
+``(nv, *batch)``; the control ``u`` is passed through untouched. The argument order is always
+``(t_s, x, u, noise)``. The model is noise-free in the sense that the *filter* chooses the noise
+samples (augmented form) or passes ``None`` and adds the covariance (additive form).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+#: ``f(t_s, x, u, v) -> x_next`` (eq. 1); ``v`` is ``None`` in the additive-noise form.
+ProcessFn = Callable[[float, np.ndarray, np.ndarray, "np.ndarray | None"], np.ndarray]
+#: ``g(t_s, x, u, w) -> z`` (eq. 2); ``w`` is ``None`` in the additive-noise form.
+MeasurementFn = Callable[[float, np.ndarray, np.ndarray, "np.ndarray | None"], np.ndarray]
+
+
+def psd_sqrt(matrix: np.ndarray) -> np.ndarray:
+    """A square root ``L`` with ``L L' = M`` of a constant symmetric PSD matrix.
+
+    Lower Cholesky factor when it exists; otherwise ``V sqrt(max(D, 0))`` from ``eigh``, which
+    also serves a singular noise covariance (e.g. ``G Q G'`` of rank below ``n``).
+    """
+    matrix = np.asarray(matrix, dtype=float)
+    try:
+        return np.linalg.cholesky(matrix)
+    except np.linalg.LinAlgError:
+        eigval, eigvec = np.linalg.eigh(0.5 * (matrix + matrix.T))
+        if eigval.min() < -1e-9 * max(1.0, float(np.abs(eigval).max())):
+            raise ValueError("noise covariance is not positive semi-definite") from None
+        return eigvec * np.sqrt(np.clip(eigval, 0.0, None))
+
+
+def _checked_cov(name: str, cov: np.ndarray) -> np.ndarray:
+    cov = np.array(cov, dtype=float)
+    if cov.ndim != 2 or cov.shape[0] != cov.shape[1]:
+        raise ValueError(f"{name} must be a square matrix, got shape {cov.shape}")
+    if not np.allclose(cov, cov.T, rtol=1e-12, atol=1e-15):
+        raise ValueError(f"{name} must be symmetric")
+    cov.setflags(write=False)
+    return cov
+
+
+@dataclass(frozen=True)
+class ProcessModel:
+    """State equation ``x(k+1) = f[x(k), u(k), v(k)]`` (eq. 1) and its noise.
+
+    Parameters
+    ----------
+    f : ProcessFn
+        ``f(t_s, x, u, v)``; with ``v=None`` it must behave as ``v = 0``.
+    nx : int
+        State dimension.
+    noise_cov : ndarray, shape (nv, nv)
+        ``Q``, the covariance of ``v`` (augmented form).
+    additive_noise_cov : ndarray, shape (nx, nx), optional
+        Covariance added to the predicted state covariance by the additive-noise form
+        (``G Q G'`` for a noise gain ``G``). Required only for that form.
+    angle_idx : tuple of int
+        State components that are angles (wrapped residuals, circular means).
+    """
+
+    f: ProcessFn
+    nx: int
+    noise_cov: np.ndarray
+    additive_noise_cov: np.ndarray | None = None
+    angle_idx: tuple[int, ...] = ()
+    noise_sqrt: np.ndarray = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "noise_cov", _checked_cov("noise_cov", self.noise_cov))
+        object.__setattr__(self, "noise_sqrt", psd_sqrt(self.noise_cov))
+        if self.additive_noise_cov is not None:
+            cov = _checked_cov("additive_noise_cov", self.additive_noise_cov)
+            if cov.shape != (self.nx, self.nx):
+                raise ValueError(f"additive_noise_cov must be ({self.nx}, {self.nx})")
+            object.__setattr__(self, "additive_noise_cov", cov)
+
+    @property
+    def nv(self) -> int:
+        """Process-noise dimension."""
+        return self.noise_cov.shape[0]
+
+
+@dataclass(frozen=True)
+class MeasurementModel:
+    """Output equation ``z = g[x, u, w]`` (eq. 2) and its noise ``w ~ N(0, R)``.
+
+    Parameters
+    ----------
+    g : MeasurementFn
+        ``g(t_s, x, u, w)``; with ``w=None`` it must behave as ``w = 0``. For a bank of
+        mode-matched filters ``x`` arrives as ``(nx, modes, sigma)`` and ``g`` may depend on the
+        mode axis (see :func:`immukf_sitl.estimation.fault_modes.fault_masked_output`).
+    noise_cov : ndarray, shape (nz, nz)
+        ``R``.
+    angle_idx : tuple of int
+        Output components that are angles.
+    name : str
+        For messages and diagnostics.
+    """
+
+    g: MeasurementFn
+    noise_cov: np.ndarray
+    angle_idx: tuple[int, ...] = ()
+    name: str = "measurement"
+    noise_sqrt: np.ndarray = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "noise_cov", _checked_cov("noise_cov", self.noise_cov))
+        object.__setattr__(self, "noise_sqrt", psd_sqrt(self.noise_cov))
+
+    @property
+    def nz(self) -> int:
+        """Output dimension."""
+        return self.noise_cov.shape[0]
+
+
+@dataclass(frozen=True)
+class Measurement:
+    """One observation ``z(k+1)`` and the model that explains it."""
+
+    z: np.ndarray
+    model: MeasurementModel
+
+    def __post_init__(self) -> None:
+        z = np.asarray(self.z, dtype=float)
+        if z.shape != (self.model.nz,):
+            raise ValueError(
+                f"measurement {self.model.name!r} needs shape ({self.model.nz},), got {z.shape}"
+            )
+        object.__setattr__(self, "z", z)
