@@ -1,0 +1,294 @@
+"""Sensor models of the simulation: IMU and GPS (Beard & McLain, *Small Unmanned Aircraft*,
+2012, ch. 7; defaults in DESIGN.md section 6).
+
+- IMU, every step (100 Hz): specific force (m/s^2) and inertial body rates (rad/s) in body FRD,
+  plus zero-mean white Gaussian noise and an optional constant bias — the HIGHRES_IMU fields
+  ``xacc..zacc``, ``xgyro..zgyro``.
+- GPS, at ``rate_hz`` (1 Hz): position with a first-order Gauss-Markov error per axis
+  (B&M eq. 7.17, ``nu[n+1] = exp(-k_GPS T) nu[n] + eta[n]``, ``eta ~ N(0, sigma^2)``; north/east
+  sigma 0.21 m, height 0.40 m, ``k_GPS = 1/1100`` 1/s), ground speed with white noise
+  (0.05 m/s) and course with white noise of ``0.05 / Vg`` rad (B&M eq. 7.19-7.20). Outputs are
+  latitude/longitude (deg), height (m), ground speed (m/s) and course (rad, wrapped); the MAVLink
+  layer converts them to GPS_RAW_INT units.
+
+All randomness comes from an injected :class:`numpy.random.Generator` (STYLE.md rule 11).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import pymap3d
+
+from sim.driver import TruthState
+
+__all__ = [
+    "GpsModel",
+    "GpsReading",
+    "GpsSpec",
+    "ImuModel",
+    "ImuReading",
+    "ImuSpec",
+]
+
+
+def _readonly(values: np.ndarray | list[float] | tuple[float, ...]) -> np.ndarray:
+    array = np.array(values, dtype=float)
+    array.setflags(write=False)
+    return array
+
+
+def _vector3(name: str, values: tuple[float, float, float]) -> None:
+    if len(values) != 3 or not all(math.isfinite(v) for v in values):
+        raise ValueError(f"{name}: expected 3 finite values, got {values!r}")
+
+
+@dataclass(frozen=True)
+class ImuSpec:
+    """Noise of the inertial sensors (B&M ch. 7 defaults).
+
+    Attributes
+    ----------
+    accel_sigma_mps2 : float
+        White-noise standard deviation of each accelerometer (m/s^2); 0.0025 g.
+    gyro_sigma_radps : float
+        White-noise standard deviation of each rate gyro (rad/s); 0.13 deg/s.
+    accel_bias_mps2 : tuple of float
+        Constant accelerometer bias, body FRD (m/s^2).
+    gyro_bias_radps : tuple of float
+        Constant gyro bias, body FRD (rad/s).
+    """
+
+    accel_sigma_mps2: float = 0.0245
+    gyro_sigma_radps: float = 0.00227
+    accel_bias_mps2: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    gyro_bias_radps: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def __post_init__(self) -> None:
+        if not (self.accel_sigma_mps2 >= 0.0 and self.gyro_sigma_radps >= 0.0):
+            raise ValueError(
+                "accel_sigma_mps2, gyro_sigma_radps: expected values >= 0, got "
+                f"{self.accel_sigma_mps2}, {self.gyro_sigma_radps}"
+            )
+        _vector3("accel_bias_mps2", self.accel_bias_mps2)
+        _vector3("gyro_bias_radps", self.gyro_bias_radps)
+
+
+@dataclass(frozen=True)
+class GpsSpec:
+    """Noise and rate of the GPS receiver (B&M ch. 7 defaults).
+
+    Attributes
+    ----------
+    rate_hz : float
+        Fix rate (Hz).
+    north_east_sigma_m : float
+        Driving-noise standard deviation of the north and east Gauss-Markov errors (m).
+    height_sigma_m : float
+        Driving-noise standard deviation of the height Gauss-Markov error (m).
+    k_gps_per_s : float
+        Inverse time constant of the Gauss-Markov errors (1/s).
+    ground_speed_sigma_mps : float
+        White-noise standard deviation of the ground speed (m/s).
+    course_sigma_mps : float
+        Course noise numerator: the course standard deviation is this divided by the ground
+        speed (rad).
+    """
+
+    rate_hz: float = 1.0
+    north_east_sigma_m: float = 0.21
+    height_sigma_m: float = 0.40
+    k_gps_per_s: float = 1.0 / 1100.0
+    ground_speed_sigma_mps: float = 0.05
+    course_sigma_mps: float = 0.05
+
+    def __post_init__(self) -> None:
+        if not self.rate_hz > 0.0:
+            raise ValueError(f"rate_hz: expected a value > 0, got {self.rate_hz}")
+        if not self.k_gps_per_s >= 0.0:
+            raise ValueError(f"k_gps_per_s: expected a value >= 0, got {self.k_gps_per_s}")
+        sigmas = (
+            self.north_east_sigma_m,
+            self.height_sigma_m,
+            self.ground_speed_sigma_mps,
+            self.course_sigma_mps,
+        )
+        if not all(s >= 0.0 for s in sigmas):
+            raise ValueError(f"GPS standard deviations: expected values >= 0, got {sigmas}")
+
+    @property
+    def period_s(self) -> float:
+        """Time between fixes (s)."""
+        return 1.0 / self.rate_hz
+
+
+@dataclass(frozen=True)
+class ImuReading:
+    """One IMU sample in HIGHRES_IMU units (read-only arrays).
+
+    Attributes
+    ----------
+    time_s : float
+        Sample time (s).
+    accel_mps2 : numpy.ndarray
+        ``(3,)`` specific force, body FRD (m/s^2): about ``(0, 0, -9.8)`` in level flight.
+    gyro_radps : numpy.ndarray
+        ``(3,)`` inertial body rates p, q, r (rad/s).
+    """
+
+    time_s: float
+    accel_mps2: np.ndarray
+    gyro_radps: np.ndarray
+
+    def as_array(self) -> np.ndarray:
+        """The 6 IMU channels ``[f_x, f_y, f_z, p, q, r]`` (docs/conventions.md)."""
+        return np.concatenate([self.accel_mps2, self.gyro_radps])
+
+
+@dataclass(frozen=True)
+class GpsReading:
+    """One GPS fix.
+
+    Attributes
+    ----------
+    time_s : float
+        Fix time (s).
+    lat_deg, lon_deg : float
+        Geodetic latitude and longitude, WGS-84 (deg).
+    alt_m : float
+        Height above the WGS-84 ellipsoid (m).
+    ground_speed_mps : float
+        Horizontal speed over the ground (m/s).
+    course_rad : float
+        Course over the ground, wrapped to [-pi, pi] (rad, 0 north, clockwise).
+    """
+
+    time_s: float
+    lat_deg: float
+    lon_deg: float
+    alt_m: float
+    ground_speed_mps: float
+    course_rad: float
+
+
+class ImuModel:
+    """Accelerometers and rate gyros with white noise and a constant bias.
+
+    Parameters
+    ----------
+    spec : ImuSpec
+        Noise and bias.
+    rng : numpy.random.Generator
+        Source of all the noise.
+    """
+
+    def __init__(self, spec: ImuSpec, rng: np.random.Generator) -> None:
+        self.spec = spec
+        self._rng = rng
+        self._accel_bias = np.array(spec.accel_bias_mps2, dtype=float)
+        self._gyro_bias = np.array(spec.gyro_bias_radps, dtype=float)
+
+    def read(self, truth: TruthState) -> ImuReading:
+        """Sample the IMU at a truth state.
+
+        Parameters
+        ----------
+        truth : TruthState
+            True specific force and inertial rates.
+
+        Returns
+        -------
+        ImuReading
+            Truth plus bias plus noise.
+        """
+        noise = self._rng.standard_normal(6)
+        accel = (
+            truth.specific_force_body_mps2
+            + self._accel_bias
+            + self.spec.accel_sigma_mps2 * noise[:3]
+        )
+        gyro = truth.rates_body_radps + self._gyro_bias + self.spec.gyro_sigma_radps * noise[3:]
+        return ImuReading(
+            time_s=truth.time_s, accel_mps2=_readonly(accel), gyro_radps=_readonly(gyro)
+        )
+
+
+class GpsModel:
+    """GPS receiver with Gauss-Markov position errors, sampled at ``spec.rate_hz``.
+
+    Parameters
+    ----------
+    spec : GpsSpec
+        Rate and noise.
+    rng : numpy.random.Generator
+        Source of all the noise.
+    start_time_s : float, optional
+        Time of the first fix (s).
+
+    Notes
+    -----
+    The Gauss-Markov errors start at zero (as in B&M's simulation) and then wander with a
+    stationary standard deviation of ``sigma / sqrt(1 - exp(-2 k_GPS T))`` (about 4.9 m north and
+    east for the defaults); they are propagated once per fix.
+    """
+
+    def __init__(self, spec: GpsSpec, rng: np.random.Generator, start_time_s: float = 0.0) -> None:
+        self.spec = spec
+        self._rng = rng
+        self._next_time_s = float(start_time_s)
+        self._count = 0
+        self._start_time_s = float(start_time_s)
+        self._error_ned_m = np.zeros(3)
+        self._decay = math.exp(-spec.k_gps_per_s * spec.period_s)
+        self._sigma_ned_m = np.array(
+            [spec.north_east_sigma_m, spec.north_east_sigma_m, spec.height_sigma_m]
+        )
+
+    @property
+    def position_error_ned_m(self) -> np.ndarray:
+        """Current Gauss-Markov position error, NED (m) (a copy)."""
+        return self._error_ned_m.copy()
+
+    def due(self, time_s: float) -> bool:
+        """Whether a fix is due at ``time_s`` (half a simulation step of tolerance)."""
+        return time_s >= self._next_time_s - 1e-6
+
+    def read(self, truth: TruthState) -> GpsReading | None:
+        """Return a fix if one is due at the truth's time, else ``None``.
+
+        Parameters
+        ----------
+        truth : TruthState
+            True position and velocity.
+
+        Returns
+        -------
+        GpsReading or None
+            The fix (the Gauss-Markov errors advance one period on each fix).
+        """
+        if not self.due(truth.time_s):
+            return None
+        spec = self.spec
+        if self._count > 0:
+            eta = self._sigma_ned_m * self._rng.standard_normal(3)
+            self._error_ned_m = self._decay * self._error_ned_m + eta
+        self._count += 1
+        self._next_time_s = self._start_time_s + self._count * spec.period_s
+        north, east, down = self._error_ned_m
+        lat, lon, alt = pymap3d.ned2geodetic(
+            north, east, down, truth.lat_deg, truth.lon_deg, truth.alt_m
+        )
+        ground_speed_true = truth.ground_speed_mps
+        ground_speed = ground_speed_true + spec.ground_speed_sigma_mps * self._rng.standard_normal()
+        course_sigma = spec.course_sigma_mps / max(ground_speed_true, 1.0)
+        course = truth.course_rad + course_sigma * self._rng.standard_normal()
+        return GpsReading(
+            time_s=truth.time_s,
+            lat_deg=float(lat),
+            lon_deg=float(lon),
+            alt_m=float(alt),
+            ground_speed_mps=float(abs(ground_speed)),
+            course_rad=float(math.remainder(course, 2.0 * math.pi)),
+        )
