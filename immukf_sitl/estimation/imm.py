@@ -12,7 +12,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.special import logsumexp
 
 from immukf_sitl.estimation.angles import weighted_mean, wrap_angle
 from immukf_sitl.estimation.diagnostics import FilterDiagnostics
@@ -31,6 +30,32 @@ def sticky_transition(n_modes: int, stay_probability: float) -> np.ndarray:
     matrix = np.full((n_modes, n_modes), off)
     np.fill_diagonal(matrix, stay_probability)
     return matrix
+
+
+def logsumexp(values: np.ndarray, axis: int | None = None) -> np.ndarray:
+    """``log(sum(exp(values)))`` without overflow (scipy's version costs ~50 us a call)."""
+    peak = np.max(values, axis=axis, keepdims=True)
+    peak = np.where(np.isfinite(peak), peak, 0.0)
+    total = np.log(np.sum(np.exp(values - peak), axis=axis, keepdims=True)) + peak
+    return total.squeeze() if axis is None else np.squeeze(total, axis=axis)
+
+
+def floor_probabilities(probs: np.ndarray, floor: float) -> np.ndarray:
+    """Raise every probability to at least ``floor``, taking the mass from the others pro rata.
+
+    Probabilities below the floor are set to it; the rest are scaled to share what is left,
+    repeated until none falls below (at most ``r`` rounds). The result sums to one.
+    """
+    fixed = probs < floor
+    scaled = probs
+    for _ in range(probs.size):
+        free_mass = 1.0 - floor * np.count_nonzero(fixed)
+        scaled = probs * (free_mass / probs[~fixed].sum())
+        now_fixed = fixed | (scaled < floor)
+        if np.array_equal(now_fixed, fixed):
+            break
+        fixed = now_fixed
+    return np.where(fixed, floor, scaled)
 
 
 @dataclass(frozen=True)
@@ -89,7 +114,7 @@ class ImmEstimator:
         ``transition[i, j] = P(M(k+1)=j | M(k)=i)`` (eq. 3).
     probability_floor : float
         Lower bound on every mode probability after eq. (26), so that a mode ruled out can come
-        back; 0 disables it. Applied by clipping and renormalising.
+        back; 0 disables it (see :func:`floor_probabilities`).
     """
 
     def __init__(
@@ -172,16 +197,19 @@ class ImmEstimator:
 
         filtered = self.ukf.step(t_s, mixed_mean, mixed_cov, u, measurement)
 
-        # eq. (26) in log space: mu_j proportional to Lambda_j c_j
-        log_post = filtered.log_likelihood + log_c
-        total = logsumexp(log_post)
-        if not np.isfinite(total):  # every mode rejected the data: keep the predicted odds
-            log_post, total = log_c, logsumexp(log_c)
-        log_mu_new = log_post - total
-        if self.probability_floor > 0.0:
-            probs = np.maximum(np.exp(log_mu_new), self.probability_floor)
-            log_mu_new = np.log(probs / probs.sum())
+        # eq. (26) in log space: mu_j proportional to Lambda_j c_j. The common factor
+        # max_j Lambda_j is divided out first so that huge log-likelihoods keep their precision.
+        log_lik = filtered.log_likelihood
+        best = np.max(log_lik)
+        if not np.isfinite(best):  # every mode rejected the data: keep the predicted odds
+            log_post = log_c.copy()
+        else:
+            log_post = (log_lik - best) + log_c
+        log_mu_new = log_post - logsumexp(log_post)
         probs = np.exp(log_mu_new)
+        if self.probability_floor > 0.0 and probs.min() < self.probability_floor:
+            probs = floor_probabilities(probs, self.probability_floor)
+            log_mu_new = np.log(probs)
 
         mean, cov = self._combine(filtered.mean, filtered.cov, probs)
         return ImmEstimate(
@@ -202,10 +230,12 @@ class ImmEstimator:
         self, means: np.ndarray, covs: np.ndarray, mixing: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
         """Mixed initial conditions of eqs. (7)-(8) for every mode j at once."""
-        # points[:, i] = x^i; weights column j gives x^0j (circular mean for angles)
-        mixed_mean = np.empty((self.n_modes, means.shape[1]))
-        for j in range(self.n_modes):
-            mixed_mean[j] = weighted_mean(means.T, mixing[:, j], self.angle_idx)  # eq. (7)
+        mixed_mean = mixing.T @ means  # eq. (7): row j is x^0j
+        if self.angle_idx:  # circular mean for angles
+            idx = list(self.angle_idx)
+            mixed_mean[:, idx] = np.arctan2(
+                mixing.T @ np.sin(means[:, idx]), mixing.T @ np.cos(means[:, idx])
+            )
         spread = means[None, :, :] - mixed_mean[:, None, :]  # [j, i] = x^i - x^0j
         if self.angle_idx:
             idx = list(self.angle_idx)

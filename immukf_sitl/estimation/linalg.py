@@ -28,10 +28,12 @@ def robust_cholesky(cov: np.ndarray, diag: FilterDiagnostics) -> np.ndarray:
     A matrix that is not numerically positive definite is repaired: first by adding a growing
     diagonal jitter (counted in ``diag.cholesky_jitter``), then by flooring its eigenvalues
     (``diag.cholesky_eigen_floor``). Non-finite entries are replaced by the eigen floor's result
-    of the identity scaled to the finite diagonal, so the filter keeps running.
+    of a diagonal matrix holding the finite diagonal entries, so the filter keeps running.
     """
     try:
-        return np.linalg.cholesky(cov)
+        factor = np.linalg.cholesky(cov)
+        if np.isfinite(factor).all():  # LAPACK passes NaN through without raising
+            return factor
     except np.linalg.LinAlgError:
         pass
     out = np.empty_like(cov)
@@ -41,12 +43,12 @@ def robust_cholesky(cov: np.ndarray, diag: FilterDiagnostics) -> np.ndarray:
 
 
 def _repair_one(cov: np.ndarray, diag: FilterDiagnostics) -> np.ndarray:
-    try:
-        return np.linalg.cholesky(cov)
-    except np.linalg.LinAlgError:
-        pass
     n = cov.shape[0]
     if np.all(np.isfinite(cov)):
+        try:
+            return np.linalg.cholesky(cov)
+        except np.linalg.LinAlgError:
+            pass
         scale = max(float(np.mean(np.abs(np.diag(cov)))), EIGEN_FLOOR_ABS)
         jitter = JITTER_START * scale
         for _ in range(JITTER_TRIES):

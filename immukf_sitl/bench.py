@@ -1,0 +1,237 @@
+"""``immukf-sitl bench``: microseconds per IMM step of the 7-mode aircraft bank.
+
+Measures the product's hot path — one IMM-UKF cycle over the 6-DOF aerodynamic model at the IMU
+rate, one GPS fix per 100 steps — in the paper's augmented form and in the additive-noise form,
+and the same bank built from filterpy's ``IMMEstimator`` of ``UnscentedKalmanFilter`` objects as
+a reference. Data come from the aerodynamic model itself flying control doublets from trim, with
+the default sensor noise (seeded). Results: medians and 99th percentiles, and the ratio.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import sys
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from immukf_sitl.models.aero import AeroModel
+from immukf_sitl.models.earth import NedOrigin
+from immukf_sitl.models.params import load_aircraft_params
+from immukf_sitl.variants import SensorNoise, build_aero_estimator
+
+GPS_EVERY_STEPS = 100
+ORIGIN = NedOrigin(-33.87, 151.21, 100.0)
+
+
+@dataclass(frozen=True)
+class BenchData:
+    """Controls, IMU and GPS samples of a flight of the aerodynamic model."""
+
+    x0: np.ndarray
+    controls: np.ndarray
+    imu: np.ndarray
+    gps: list[np.ndarray | None]
+
+
+def make_flight(model: AeroModel, n_steps: int, seed: int) -> BenchData:
+    """Fly the model from trim at 25 m/s with elevator/aileron/rudder doublets."""
+    rng = np.random.default_rng(seed)
+    noise = SensorNoise()
+    x0, u0 = model.trim(25.0)
+    x = x0.copy()
+    controls, imu, gps = [], [], []
+    imu_sigma = np.sqrt(np.diag(noise.imu_cov()))
+    gps_sigma = np.sqrt(np.diag(noise.gps_cov()))
+    for k in range(n_steps):
+        t = k * model.dt_s
+        u = u0 + np.array(
+            [0.02 * np.sin(0.7 * t), 0.03 * np.sin(0.5 * t), 0.01 * np.sin(0.3 * t), 0.0]
+        )
+        x = model.step(t, x, u)
+        controls.append(u)
+        imu.append(model.imu(t, x, u) + imu_sigma * rng.standard_normal(6))
+        gps.append(
+            model.gps(t, x, u) + gps_sigma * rng.standard_normal(5)
+            if (k + 1) % GPS_EVERY_STEPS == 0
+            else None
+        )
+    return BenchData(x0, np.array(controls), np.array(imu), gps)
+
+
+def initial_cov() -> np.ndarray:
+    """A converged-looking covariance to start the bench from."""
+    return np.diag([1.0, 1.0, 1.0, 0.1, 0.1, 0.1, 1e-3, 1e-3, 1e-3, 1e-4, 1e-4, 1e-4])
+
+
+def time_ours(model: AeroModel, data: BenchData, form: str, warmup: int) -> dict:
+    """Per-step times of our 7-mode IMM in one noise form."""
+    est = build_aero_estimator("imm", model, noise_form=form)
+    est.initialize(0.0, data.x0, initial_cov())
+    times_ns = []
+    gps_times_ns = []
+    for k in range(len(data.controls)):
+        start = time.perf_counter_ns()
+        est.step(k * model.dt_s, data.controls[k], data.imu[k], data.gps[k])
+        elapsed = time.perf_counter_ns() - start
+        if k >= warmup:
+            (gps_times_ns if data.gps[k] is not None else times_ns).append(elapsed)
+    all_ns = np.array(times_ns + gps_times_ns)
+    return {
+        "form": form,
+        "modes": len(est.modes),
+        "steps": int(all_ns.size),
+        "median_us": float(np.median(all_ns) / 1e3),
+        "p99_us": float(np.percentile(all_ns, 99) / 1e3),
+        "imu_only_median_us": float(np.median(times_ns) / 1e3),
+        "gps_step_median_us": float(np.median(gps_times_ns) / 1e3) if gps_times_ns else None,
+        "diagnostics": est.imm.diagnostics.as_dict(),
+    }
+
+
+def time_filterpy(model: AeroModel, data: BenchData, n_steps: int) -> dict:
+    """The same 7-mode bank built from filterpy objects (a Python call per sigma point)."""
+    from filterpy.kalman import IMMEstimator, MerweScaledSigmaPoints, UnscentedKalmanFilter
+
+    from immukf_sitl.estimation import single_fault_modes, sticky_transition
+    from immukf_sitl.variants import aero_process_model
+
+    noise = SensorNoise()
+    process = aero_process_model(model)
+    current = {"u": data.controls[0]}
+    filters = []
+    for mode in single_fault_modes():
+        mask = mode.healthy_mask
+
+        def hx(x: np.ndarray, mask: np.ndarray = mask) -> np.ndarray:
+            return mask * model.imu(0.0, x, current["u"])
+
+        def fx(x: np.ndarray, dt: float) -> np.ndarray:
+            return model.step(0.0, x, current["u"])
+
+        ukf = UnscentedKalmanFilter(
+            dim_x=12,
+            dim_z=6,
+            dt=model.dt_s,
+            hx=hx,
+            fx=fx,
+            points=MerweScaledSigmaPoints(12, alpha=1.0, beta=0.0, kappa=0.0),
+        )
+        ukf.x = data.x0.copy()
+        ukf.P = initial_cov()
+        ukf.Q = process.additive_noise_cov.copy()
+        ukf.R = noise.imu_cov()
+        filters.append(ukf)
+    bank = IMMEstimator(filters, np.full(7, 1 / 7), sticky_transition(7, 0.99))
+    times_ns = []
+    for k in range(n_steps):
+        current["u"] = data.controls[k]
+        start = time.perf_counter_ns()
+        bank.predict()
+        bank.update(data.imu[k])
+        times_ns.append(time.perf_counter_ns() - start)
+    arr = np.array(times_ns[2:])
+    return {
+        "form": "filterpy-additive",
+        "modes": 7,
+        "steps": int(arr.size),
+        "median_us": float(np.median(arr) / 1e3),
+        "p99_us": float(np.percentile(arr, 99) / 1e3),
+    }
+
+
+def run_bench(steps: int, filterpy_steps: int, seed: int = 1) -> dict:
+    """Run every measurement; returns the JSON-ready result."""
+    model = AeroModel(load_aircraft_params(), ORIGIN)
+    data = make_flight(model, steps, seed)
+    warmup = min(50, steps // 10)
+    results = [time_ours(model, data, form, warmup) for form in ("augmented", "additive")]
+    result: dict = {
+        "benchmark": "7-mode IMM-UKF step over the 6-DOF Aerosonde model, 100 Hz IMU, 1 Hz GPS",
+        "machine": {"python": platform.python_version(), "cpu_count": _cpu_count()},
+        "model_backend": "numba" if model.uses_numba else "numpy",
+        "results": results,
+    }
+    if filterpy_steps > 0:
+        reference = time_filterpy(model, data, filterpy_steps)
+        result["filterpy"] = reference
+        ours_imu = results[1]["imu_only_median_us"]
+        result["filterpy_ratio"] = reference["median_us"] / ours_imu
+        result["filterpy_ratio_note"] = (
+            "filterpy median / our additive-form IMU-only median (same sigma-point count)"
+        )
+    return result
+
+
+def _cpu_count() -> int:
+    import os
+
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+
+
+def print_human(result: dict) -> None:
+    """Table for people, on stderr."""
+    out = sys.stderr
+    print(f"{result['benchmark']} (model backend: {result['model_backend']})", file=out)
+    print(f"{'form':<20}{'modes':>6}{'steps':>7}{'median us':>11}{'p99 us':>10}", file=out)
+    rows = list(result["results"])
+    if "filterpy" in result:
+        rows.append(result["filterpy"])
+    for row in rows:
+        print(
+            f"{row['form']:<20}{row['modes']:>6}{row['steps']:>7}"
+            f"{row['median_us']:>11.1f}{row['p99_us']:>10.1f}",
+            file=out,
+        )
+    if "filterpy_ratio" in result:
+        print(f"filterpy is {result['filterpy_ratio']:.1f}x slower per step", file=out)
+    budget_us = 10_000.0
+    aug = result["results"][0]["median_us"]
+    print(f"real-time margin at 100 Hz (augmented): {budget_us / aug:.1f}x", file=out)
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add the ``bench`` subcommand."""
+    parser = subparsers.add_parser(
+        "bench",
+        help="time the 7-mode IMM-UKF step (augmented, additive, filterpy reference)",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    parser.add_argument(
+        "--steps", type=int, default=2000, help="IMM steps to time per form (default 2000)"
+    )
+    parser.add_argument(
+        "--filterpy-steps",
+        type=int,
+        default=30,
+        help="steps of the (slow) filterpy reference; 0 skips it (default 30)",
+    )
+    parser.add_argument("--seed", type=int, default=1, help="noise seed (default 1)")
+    parser.set_defaults(handler=_main)
+
+
+def _main(args: argparse.Namespace) -> int:
+    from immukf_sitl.errors import UserError
+
+    if args.steps < 20:
+        raise UserError(f"--steps must be at least 20, got {args.steps}")
+    if args.filterpy_steps < 0 or 0 < args.filterpy_steps < 5:
+        raise UserError(f"--filterpy-steps must be 0 or at least 5, got {args.filterpy_steps}")
+    if args.filterpy_steps:
+        try:
+            import filterpy  # noqa: F401
+        except ImportError:
+            raise UserError(
+                "filterpy is not installed (pip install -e '.[dev]'), or pass --filterpy-steps 0"
+            ) from None
+    print(f"timing {args.steps} steps per form...", file=sys.stderr)
+    result = run_bench(args.steps, args.filterpy_steps, args.seed)
+    print_human(result)
+    if args.json:
+        print(json.dumps(result))
+    return 0

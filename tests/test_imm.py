@@ -1,0 +1,156 @@
+"""The IMM: reduction to one UKF, mode switching, and zeroed-channel fault identification."""
+
+import numpy as np
+import pytest
+from toy_systems import (
+    constant_velocity,
+    identity_output,
+    oscillator_bank,
+    range_bearing_model,
+    simulate_target,
+)
+
+from immukf_sitl.estimation import (
+    FaultMode,
+    ImmEstimator,
+    Measurement,
+    MeasurementModel,
+    UnscentedKalmanFilter,
+    fault_masked_output,
+    single_fault_modes,
+    sticky_transition,
+)
+
+SENSOR_SIGMA = 0.05
+#: Steps after a switch by which the true mode's probability must exceed 0.9 (documented bound).
+SWITCH_DETECTION_STEPS = 5
+
+
+def test_one_mode_imm_is_exactly_the_ukf():
+    sys = constant_velocity()
+    model = range_bearing_model()
+    rng = np.random.default_rng(11)
+    _, zs = simulate_target(rng, sys, np.array([1500.0, 400.0, -5.0, 8.0]), 50)
+    x0 = np.array([1490.0, 410.0, -4.0, 7.0])
+    P0 = np.diag([400.0, 400.0, 4.0, 4.0])
+
+    ukf = UnscentedKalmanFilter(sys.process())
+    imm = ImmEstimator(UnscentedKalmanFilter(sys.process()), np.ones((1, 1)))
+    est = imm.initial_estimate(0.0, x0, P0)
+    x, P = x0[None], P0[None]
+    for k, z in enumerate(zs):
+        single = ukf.step(0.1 * k, x, P, np.zeros(0), Measurement(z, model))
+        x, P = single.mean, single.cov
+        est = imm.step(est, 0.1 * k, np.zeros(0), Measurement(z, model))
+        assert np.array_equal(est.mean, x[0])
+        assert np.array_equal(est.cov, P[0])
+        assert est.mode_probabilities[0] == 1.0
+
+
+def _simulate_oscillators(rng, A, n_steps, fault_at):
+    """True oscillator states and six-channel readings; ``fault_at(k)`` gives the FaultMode."""
+    x = np.array([1.0, 0.3, -0.8, 0.2, 1.0, 0.6])
+    zs = []
+    for k in range(n_steps):
+        x = A @ x + 0.01 * rng.standard_normal(6)
+        reading = x * fault_at(k).healthy_mask + SENSOR_SIGMA * rng.standard_normal(6)
+        zs.append(reading)
+    return np.array(zs)
+
+
+def _bank(modes, stay=0.99, floor=1e-4):
+    process, A = oscillator_bank()
+    measurement = MeasurementModel(
+        fault_masked_output(identity_output, modes), np.eye(6) * SENSOR_SIGMA**2, name="imu"
+    )
+    imm = ImmEstimator(UnscentedKalmanFilter(process), sticky_transition(len(modes), stay), floor)
+    return imm, measurement, A
+
+
+def _run(imm, measurement, zs):
+    est = imm.initial_estimate(0.0, np.zeros(6), np.eye(6))
+    probs = []
+    for k, z in enumerate(zs):
+        est = imm.step(est, 0.1 * k, np.zeros(0), Measurement(z, measurement))
+        probs.append(est.mode_probabilities)
+    return np.array(probs), est
+
+
+def test_true_mode_probability_exceeds_0_9_within_bound_after_each_switch():
+    modes = [FaultMode(0), FaultMode.from_name("q")]
+    imm, measurement, A = _bank(modes)
+    switches = [0, 120, 260]  # none -> q at 120 -> none at 260
+
+    def truth(k):
+        return modes[1] if 120 <= k < 260 else modes[0]
+
+    zs = _simulate_oscillators(np.random.default_rng(5), A, 400, truth)
+    probs, _ = _run(imm, measurement, zs)
+    true_index = np.array([modes.index(truth(k)) for k in range(400)])
+    p_true = probs[np.arange(400), true_index]
+    bounds = switches[1:] + [400]
+    for start, end in zip(switches, bounds, strict=False):
+        segment = p_true[start:end]
+        delay = int(np.argmax(segment > 0.9))
+        assert segment[delay] > 0.9 and delay <= SWITCH_DETECTION_STEPS, (start, segment[:10])
+        # a channel crossing zero briefly favours the zeroed mode (physics, not a bug): allow 3 %
+        assert np.mean(segment[delay:] > 0.9) >= 0.97, (start, np.where(segment < 0.9))
+
+
+@pytest.mark.parametrize("channel", ["x", "y", "z", "p", "q", "r"])
+def test_a_zeroed_channel_is_identified_among_seven_modes(channel):
+    modes = list(single_fault_modes())
+    imm, measurement, A = _bank(modes)
+    fault = FaultMode.from_name(channel)
+    zs = _simulate_oscillators(
+        np.random.default_rng(100 + fault.bits), A, 200, lambda k: fault if k >= 80 else modes[0]
+    )
+    probs, est = _run(imm, measurement, zs)
+    assert np.mean(probs[20:80, 0] > 0.9) >= 0.95  # fault-free before
+    fault_index = modes.index(fault)
+    after = probs[80:, fault_index]
+    delay = int(np.argmax(after > 0.9))
+    assert after[delay] > 0.9 and delay <= 2 * SWITCH_DETECTION_STEPS, after[:15]
+    assert np.mean(after[delay:] > 0.9) >= 0.97
+    assert est.most_likely_mode == fault_index
+
+
+def test_transition_matrix_convention_is_checked():
+    process, _ = oscillator_bank()
+    with pytest.raises(ValueError, match="rows summing to 1"):
+        ImmEstimator(UnscentedKalmanFilter(process), np.array([[0.9, 0.2], [0.1, 0.9]]))
+    with pytest.raises(ValueError, match="square"):
+        ImmEstimator(UnscentedKalmanFilter(process), np.ones((2, 3)) / 3)
+
+
+def test_probability_floor_keeps_every_mode_alive():
+    modes = list(single_fault_modes())
+    imm, measurement, A = _bank(modes, floor=1e-3)
+    zs = _simulate_oscillators(np.random.default_rng(9), A, 100, lambda k: modes[0])
+    probs, _ = _run(imm, measurement, zs)
+    assert probs.min() >= 1e-3 * (1 - 1e-9)
+    np.testing.assert_allclose(probs.sum(axis=1), 1.0, rtol=1e-12)
+
+
+def test_mixing_and_combination_match_the_textbook_formulas():
+    # two modes, hand-computed eqs. (6)-(8) and (27)-(28) with a non-uniform transition matrix
+    process, _ = oscillator_bank()
+    T = np.array([[0.95, 0.05], [0.2, 0.8]])
+    imm = ImmEstimator(UnscentedKalmanFilter(process), T)
+    rng = np.random.default_rng(2)
+    means = rng.normal(size=(2, 6))
+    covs = np.stack([np.eye(6) * 0.5, np.eye(6) * 2.0])
+    mu = np.array([0.3, 0.7])
+    c = T.T @ mu
+    mix = T * mu[:, None] / c[None, :]
+    mixed_mean, mixed_cov = imm._mix(means, covs, mix)
+    for j in range(2):
+        x0 = sum(mix[i, j] * means[i] for i in range(2))
+        P0 = sum(mix[i, j] * (covs[i] + np.outer(means[i] - x0, means[i] - x0)) for i in range(2))
+        np.testing.assert_allclose(mixed_mean[j], x0, rtol=1e-12)
+        np.testing.assert_allclose(mixed_cov[j], P0, rtol=1e-12)
+    mean, cov = imm._combine(means, covs, mu)
+    x = mu @ means
+    P = sum(mu[j] * (covs[j] + np.outer(means[j] - x, means[j] - x)) for j in range(2))
+    np.testing.assert_allclose(mean, x, rtol=1e-12)
+    np.testing.assert_allclose(cov, P, rtol=1e-12)
