@@ -42,8 +42,15 @@ _LAPSE_KPM = 0.0065  # temperature lapse rate
 _G0_MPS2 = 9.80665  # standard gravity
 _R_AIR_JPKGK = 287.05287  # specific gas constant of dry air
 _R_EARTH_GEOPOTENTIAL_M = 6356766.0  # earth radius of the geopotential conversion (USSA 1976)
-_TROPOPAUSE_M = 11000.0
-_DENSITY_EXPONENT = _G0_MPS2 / (_R_AIR_JPKGK * _LAPSE_KPM) - 1.0  # 4.2559
+_TROPOPAUSE_M = 11000.0  # geopotential
+_TROPOPAUSE_GEOMETRIC_M = (
+    _R_EARTH_GEOPOTENTIAL_M * _TROPOPAUSE_M / (_R_EARTH_GEOPOTENTIAL_M - _TROPOPAUSE_M)
+)
+#: ISA troposphere: L / T0 (1/m) and the density exponent g0 / (R L) - 1 (about 4.2559).
+ISA_LAPSE_OVER_T0_PM = _LAPSE_KPM / _T0_K
+ISA_DENSITY_EXPONENT = _G0_MPS2 / (_R_AIR_JPKGK * _LAPSE_KPM) - 1.0
+ISA_RHO0_KGPM3 = _RHO0_KGPM3
+ISA_EARTH_RADIUS_M = _R_EARTH_GEOPOTENTIAL_M
 
 
 @dataclass(frozen=True)
@@ -192,8 +199,13 @@ def isa_density_kgpm3(alt_m: ArrayLike) -> np.ndarray:
         If an altitude lies at or above the tropopause (11 km), where the formula is wrong.
     """
     h = np.asarray(alt_m, dtype=float)
-    geopotential_m = _R_EARTH_GEOPOTENTIAL_M * h / (_R_EARTH_GEOPOTENTIAL_M + h)
-    if np.any(geopotential_m >= _TROPOPAUSE_M):
+    if np.any(h >= _TROPOPAUSE_GEOMETRIC_M):
         raise ValueError("isa_density_kgpm3: altitude beyond the troposphere (11 km)")
-    theta = 1.0 - _LAPSE_KPM * geopotential_m / _T0_K
-    return _RHO0_KGPM3 * theta**_DENSITY_EXPONENT
+    return isa_density_unchecked(h)
+
+
+def isa_density_unchecked(alt_m: np.ndarray | float) -> np.ndarray | float:
+    """:func:`isa_density_kgpm3` without the range check, for hot loops (same formula)."""
+    # USSA 1976 eq. (18): geopotential altitude; eq. (42): troposphere density
+    geopotential_m = _R_EARTH_GEOPOTENTIAL_M * alt_m / (_R_EARTH_GEOPOTENTIAL_M + alt_m)
+    return _RHO0_KGPM3 * (1.0 - ISA_LAPSE_OVER_T0_PM * geopotential_m) ** ISA_DENSITY_EXPONENT
