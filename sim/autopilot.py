@@ -12,7 +12,9 @@ Loops (Beard & McLain, *Small Unmanned Aircraft*, 2012, ch. 6 and 10), all at th
   limited), pitch -> elevator (PID, the pitch rate as the derivative), airspeed -> throttle (PI).
 
 Every integrator has conditional-integration anti-windup (it stops when the output saturates in
-the direction of the error) and every output is limited. Surface commands are trim plus the
+the direction of the error) and every output is limited; the roll command and the control
+outputs are slew-rate limited (servo speed), so that a waypoint switch does not step the
+surfaces. Surface commands are trim plus the
 loop outputs, so the autopilot starts from the trim without a transient.
 
 The autopilot sees the aircraft only through :class:`NavigationState`, built from the truth
@@ -216,6 +218,7 @@ class AutopilotGains:
     course_kp: float = 1.5  # rad roll per rad course error
     course_ki: float = 0.02
     roll_limit_rad: float = math.radians(30.0)
+    roll_cmd_rate_radps: float = math.radians(45.0)  # slew limit of the roll command
     roll_kp: float = 0.8  # rad aileron per rad roll error
     roll_ki: float = 0.05
     roll_kd: float = 0.05  # rad aileron per rad/s roll rate
@@ -233,6 +236,9 @@ class AutopilotGains:
     pitch_kd: float = 0.15  # rad per rad/s pitch rate
     airspeed_kp: float = 0.08  # throttle per m/s
     airspeed_ki: float = 0.03
+    # actuators
+    surface_rate_radps: float = 3.0  # slew limit of the surface commands (servo speed)
+    throttle_rate_ps: float = 1.0  # slew limit of the throttle command (1/s)
 
 
 @dataclass(frozen=True)
@@ -369,6 +375,8 @@ class Autopilot:
         self._finished = False
         self._leg_start: np.ndarray | None = None
         self._alt_ref: float | None = None
+        self._roll_cmd = 0.0
+        self._last_controls = np.array(trim.controls, dtype=float)
         self._status: AutopilotStatus | None = None
 
     @property
@@ -443,7 +451,10 @@ class Autopilot:
         # Lateral loops.
         phi, theta = float(nav.euler_rad[0]), float(nav.euler_rad[1])
         p, q = float(nav.rates_body_radps[0]), float(nav.rates_body_radps[1])
-        roll_cmd = self._course.update(wrap_angle_rad(course_cmd - course), dt)
+        roll_target = self._course.update(wrap_angle_rad(course_cmd - course), dt)
+        roll_step = g.roll_cmd_rate_radps * dt
+        self._roll_cmd += min(max(roll_target - self._roll_cmd, -roll_step), roll_step)
+        roll_cmd = self._roll_cmd
         delta_a = u0[1] + self._roll.update(roll_cmd - phi, dt, rate=p)
         delta_r = u0[2] - self._sideslip.update(float(nav.beta_rad), dt)
 
@@ -467,5 +478,8 @@ class Autopilot:
             pitch_cmd_rad=pitch_cmd,
             cross_track_m=cross_track,
         )
-        controls = np.array([delta_e, delta_a, delta_r, delta_t])
-        return np.clip(controls, self._lower, self._upper)
+        controls = np.clip(np.array([delta_e, delta_a, delta_r, delta_t]), self._lower, self._upper)
+        rate = np.array([g.surface_rate_radps] * 3 + [g.throttle_rate_ps]) * dt
+        controls = self._last_controls + np.clip(controls - self._last_controls, -rate, rate)
+        self._last_controls = controls
+        return controls.copy()

@@ -1,0 +1,1 @@
+"""Experiments: filter variants, Monte Carlo runs, model validation against JSBSim."""
