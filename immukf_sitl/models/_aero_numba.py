@@ -67,7 +67,7 @@ def _forces_moments(x, u, k, out):
     beta = math.atan2(vv, math.sqrt(uu * uu + ww * ww))
     ca = math.cos(alpha)
     sa = math.sin(alpha)
-    qbar_s = 0.5 * rho * va2
+    qbar = 0.5 * rho * va2
     qv = 0.5 * rho * va
     e_minus = math.exp(-k[M_BLEND] * (alpha - k[ALPHA0]))
     e_plus = math.exp(k[M_BLEND] * (alpha + k[ALPHA0]))
@@ -76,8 +76,8 @@ def _forces_moments(x, u, k, out):
     c_drag = k[CD0] + k[CDA] * alpha
     cq = k[C_2] * q
     s = k[S]
-    lift = s * (qbar_s * (c_lift + k[CLDE] * de) + qv * k[CLQ] * cq)
-    drag = s * (qbar_s * (c_drag + k[CDDE] * de) + qv * k[CDQ] * cq)
+    lift = s * (qbar * (c_lift + k[CLDE] * de) + qv * k[CLQ] * cq)
+    drag = s * (qbar * (c_drag + k[CDDE] * de) + qv * k[CDQ] * cq)
     bp = k[B_2] * p
     br = k[B_2] * r
 
@@ -96,7 +96,7 @@ def _forces_moments(x, u, k, out):
 
     out[0] = -ca * drag + sa * lift + thrust
     out[1] = s * (
-        qbar_s * (k[CY0] + k[CYB] * beta + k[CYDA] * da + k[CYDR] * dr)
+        qbar * (k[CY0] + k[CYB] * beta + k[CYDA] * da + k[CYDR] * dr)
         + qv * (k[CYP] * bp + k[CYR] * br)
     )
     out[2] = -sa * drag - ca * lift
@@ -104,19 +104,19 @@ def _forces_moments(x, u, k, out):
         s
         * k[B]
         * (
-            qbar_s * (k[CL_0] + k[CL_B] * beta + k[CL_DA] * da + k[CL_DR] * dr)
+            qbar * (k[CL_0] + k[CL_B] * beta + k[CL_DA] * da + k[CL_DR] * dr)
             + qv * (k[CL_P] * bp + k[CL_R] * br)
         )
     )
     if k[TORQUE_ON_ROLL] != 0.0:
         roll = roll - torque
     out[3] = roll
-    out[4] = s * k[C] * (qbar_s * (k[CM0] + k[CMA] * alpha + k[CMDE] * de) + qv * k[CMQ] * cq)
+    out[4] = s * k[C] * (qbar * (k[CM0] + k[CMA] * alpha + k[CMDE] * de) + qv * k[CMQ] * cq)
     out[5] = (
         s
         * k[B]
         * (
-            qbar_s * (k[CN0] + k[CNB] * beta + k[CNDA] * da + k[CNDR] * dr)
+            qbar * (k[CN0] + k[CNB] * beta + k[CNDA] * da + k[CNDR] * dr)
             + qv * (k[CNP] * bp + k[CNR] * br)
         )
     )

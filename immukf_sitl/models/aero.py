@@ -377,7 +377,8 @@ class AeroModel:
                 v2 = np.broadcast_to(v[:, None], (6, n))
             else:
                 v2 = np.broadcast_to(v, (6, *x.shape[1:])).reshape(6, n)
-        return x2, u2, v2
+        # contiguous copies: one compiled signature per kernel, whatever the caller passes
+        return x2, np.ascontiguousarray(u2), np.ascontiguousarray(v2)
 
     # -----------------------------------------------------------------------------------------
     # constructors and noise
@@ -448,9 +449,10 @@ class AeroModel:
         beta = np.arctan2(vv, np.sqrt(uu * uu + ww * ww))  # eq. (2.8), = asin(v / Va)
         ca = np.cos(alpha)
         sa = np.sin(alpha)
-        # 1/2 rho Va^2 S and 1/4 rho Va S (rate terms: (c q / 2 Va) times Va^2)
-        qbar_s = 0.5 * rho * va2
-        qv = 0.5 * rho * va  # times (c/2) q or (b/2) p, r below gives the rate terms
+        # dynamic pressure; the rate terms 1/2 rho Va^2 C (c q / (2 Va)) are written as
+        # 1/2 rho Va C (c/2) q, which stays finite at Va = 0
+        qbar = 0.5 * rho * va2
+        qv = 0.5 * rho * va
 
         # lift and drag coefficients, eqs. (4.9), (4.10); linear drag (DESIGN.md s. 6)
         e_minus = np.exp(-a.M * (alpha - a.alpha0_rad))
@@ -463,8 +465,8 @@ class AeroModel:
         cq = c["c_2"] * q
         s = self.params.geometry.S_m2
         # eq. (4.6), (4.7): stability-axis lift and drag (N)
-        lift = s * (qbar_s * (c_lift + a.C_L_delta_e * de) + qv * a.C_L_q * cq)
-        drag = s * (qbar_s * (c_drag + a.C_D_delta_e * de) + qv * a.C_D_q * cq)
+        lift = s * (qbar * (c_lift + a.C_L_delta_e * de) + qv * a.C_L_q * cq)
+        drag = s * (qbar * (c_drag + a.C_D_delta_e * de) + qv * a.C_D_q * cq)
 
         bp = c["b_2"] * p
         br = c["b_2"] * r
@@ -473,7 +475,7 @@ class AeroModel:
         # eq. (4.18): stability -> body; side force eq. (4.14)
         out[0] = -ca * drag + sa * lift + thrust
         out[1] = s * (
-            qbar_s * (a.C_Y_0 + a.C_Y_beta * beta + a.C_Y_delta_a * da + a.C_Y_delta_r * dr)
+            qbar * (a.C_Y_0 + a.C_Y_beta * beta + a.C_Y_delta_a * da + a.C_Y_delta_r * dr)
             + qv * (a.C_Y_p * bp + a.C_Y_r * br)
         )
         out[2] = -sa * drag - ca * lift
@@ -483,7 +485,7 @@ class AeroModel:
             s
             * b_m
             * (
-                qbar_s
+                qbar
                 * (a.C_ell_0 + a.C_ell_beta * beta + a.C_ell_delta_a * da + a.C_ell_delta_r * dr)
                 + qv * (a.C_ell_p * bp + a.C_ell_r * br)
             )
@@ -494,13 +496,13 @@ class AeroModel:
         out[4] = (
             s
             * self.params.geometry.c_m
-            * (qbar_s * (a.C_m_0 + a.C_m_alpha * alpha + a.C_m_delta_e * de) + qv * a.C_m_q * cq)
+            * (qbar * (a.C_m_0 + a.C_m_alpha * alpha + a.C_m_delta_e * de) + qv * a.C_m_q * cq)
         )
         out[5] = (
             s
             * b_m
             * (
-                qbar_s * (a.C_n_0 + a.C_n_beta * beta + a.C_n_delta_a * da + a.C_n_delta_r * dr)
+                qbar * (a.C_n_0 + a.C_n_beta * beta + a.C_n_delta_a * da + a.C_n_delta_r * dr)
                 + qv * (a.C_n_p * bp + a.C_n_r * br)
             )
         )
