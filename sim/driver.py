@@ -375,7 +375,8 @@ class JsbsimDriver:
         )
         if result.residual_accel_mps2 > 1e-6 or result.residual_angular_accel_radps2 > 1e-6:
             raise JsbsimError(
-                f"trim did not converge at {self.initial.airspeed_mps} m/s: residual "
+                f"trim did not converge at {self.initial.airspeed_mps} m/s (level flight "
+                "needs about 17-33 m/s within the control limits): residual "
                 f"{result.residual_accel_mps2:.3g} m/s^2, "
                 f"{result.residual_angular_accel_radps2:.3g} rad/s^2"
             )

@@ -137,6 +137,20 @@ def test_step_rejects_bad_controls(driver):
         driver.step(np.zeros(3))
 
 
+@pytest.mark.parametrize("airspeed_mps", [18.0, 30.0])
+def test_trim_across_the_envelope(airspeed_mps):
+    trim = JsbsimDriver(InitialConditions(airspeed_mps=airspeed_mps)).trim()
+    assert trim.residual_accel_mps2 < 1e-8
+
+
+def test_trim_outside_the_envelope_raises():
+    from sim.driver import JsbsimError
+
+    # at 40 m/s full throttle cannot balance the drag
+    with pytest.raises(JsbsimError, match="trim did not converge at 40.0 m/s"):
+        JsbsimDriver(InitialConditions(airspeed_mps=40.0)).trim()
+
+
 def test_initial_conditions_are_validated():
     with pytest.raises(ValueError, match="airspeed_mps"):
         InitialConditions(airspeed_mps=5.0)
