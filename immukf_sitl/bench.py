@@ -51,14 +51,15 @@ def make_flight(model: AeroModel, n_steps: int, seed: int) -> BenchData:
         u = u0 + np.array(
             [0.02 * np.sin(0.7 * t), 0.03 * np.sin(0.5 * t), 0.01 * np.sin(0.3 * t), 0.0]
         )
-        x = model.step(t, x, u)
+        # sample k: controls acting from t_k, IMU and GPS of the state at t_k
         controls.append(u)
         imu.append(model.imu(t, x, u) + imu_sigma * rng.standard_normal(6))
         gps.append(
             model.gps(t, x, u) + gps_sigma * rng.standard_normal(5)
-            if (k + 1) % GPS_EVERY_STEPS == 0
+            if k % GPS_EVERY_STEPS == 0 and k > 0
             else None
         )
+        x = model.step(t, x, u)
     return BenchData(x0, np.array(controls), np.array(imu), gps)
 
 
@@ -70,10 +71,10 @@ def initial_cov() -> np.ndarray:
 def time_ours(model: AeroModel, data: BenchData, form: str, warmup: int) -> dict:
     """Per-step times of our 7-mode IMM in one noise form."""
     est = build_aero_estimator("imm", model, noise_form=form)
-    est.initialize(0.0, data.x0, initial_cov())
+    est.initialize(0.0, data.x0, initial_cov(), data.controls[0])
     times_ns = []
     gps_times_ns = []
-    for k in range(len(data.controls)):
+    for k in range(1, len(data.controls)):
         start = time.perf_counter_ns()
         est.step(k * model.dt_s, data.controls[k], data.imu[k], data.gps[k])
         elapsed = time.perf_counter_ns() - start
@@ -100,8 +101,8 @@ def time_filterpy(model: AeroModel, data: BenchData, n_steps: int) -> dict:
     from immukf_sitl.variants import aero_process_model
 
     noise = SensorNoise()
-    process = aero_process_model(model)
-    current = {"u": data.controls[0]}
+    process = aero_process_model(model, noise)
+    current = {"u_prev": data.controls[0], "u": data.controls[0]}
     filters = []
     for mode in single_fault_modes():
         mask = mode.healthy_mask
@@ -110,7 +111,7 @@ def time_filterpy(model: AeroModel, data: BenchData, n_steps: int) -> dict:
             return mask * model.imu(0.0, x, current["u"])
 
         def fx(x: np.ndarray, dt: float) -> np.ndarray:
-            return model.step(0.0, x, current["u"])
+            return model.step(0.0, x, current["u_prev"])
 
         ukf = UnscentedKalmanFilter(
             dim_x=12,
@@ -127,8 +128,8 @@ def time_filterpy(model: AeroModel, data: BenchData, n_steps: int) -> dict:
         filters.append(ukf)
     bank = IMMEstimator(filters, np.full(7, 1 / 7), sticky_transition(7, 0.99))
     times_ns = []
-    for k in range(n_steps):
-        current["u"] = data.controls[k]
+    for k in range(1, n_steps + 1):
+        current["u_prev"], current["u"] = data.controls[k - 1], data.controls[k]
         start = time.perf_counter_ns()
         bank.predict()
         bank.update(data.imu[k])

@@ -44,7 +44,7 @@ def test_bench_json_has_the_promised_fields():
     for row in forms.values():
         assert row["modes"] == 7
         assert 0 < row["median_us"] <= row["p99_us"]
-        assert row["diagnostics"]["steps"] >= 40
+        assert row["diagnostics"]["steps"] >= row["steps"]
     assert result["filterpy_ratio"] > 0
     assert "median us" in out.stderr  # the human table goes to stderr
 
