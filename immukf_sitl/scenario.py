@@ -1,0 +1,436 @@
+"""Scenario files: a flight, its sensors and a schedule of injected faults (YAML).
+
+A wrong file gets one line naming the file, the field and what was expected
+(:class:`ScenarioError`). The schema, with every default (README "Scenario files" shows it too)::
+
+    name: q-gyro-zeroed            # required, a label
+    description: ...               # optional
+    duration_s: 90                 # required, > 0
+    seed: 7                        # required, integer: every noise source derives from it
+    start:                         # optional: initial position (also the sim's NED origin)
+      lat_deg: 47.3977
+      lon_deg: 8.5456
+      alt_m: 150                   # WGS-84 height (m)
+      airspeed_mps: 25
+      heading_deg: 0
+    flight_plan:                   # required
+      loop: true
+      acceptance_radius_m: 15
+      waypoints:                   # north/east about the start, height above the ellipsoid
+        - {north_m: 400, east_m: 0, alt_m: 150, airspeed_mps: 25}
+    sensors:                       # optional, defaults of Beard & McLain ch. 7
+      imu: {accel_sigma_mps2: 0.0245, gyro_sigma_radps: 0.00227,
+            accel_bias_mps2: [0, 0, 0], gyro_bias_radps: [0, 0, 0]}
+      gps: {rate_hz: 1, north_east_sigma_m: 0.21, height_sigma_m: 0.40,
+            ground_speed_sigma_mps: 0.05, course_sigma_mps: 0.05}
+    faults:                        # optional list, applied by the fault proxy
+      - t_s: 30                    # start time (s, sim clock)
+        end_t_s: 60                # optional: the sensor recovers
+        channels: [q]              # any of x, y, z (accelerometers), p, q, r (gyros)
+        kind: zero                 # zero | stuck | bias | drift
+        value: 0.0                 # bias: offset (m/s^2 or rad/s); drift: rate per second
+    manoeuvres:                    # optional: control doublets on top of the autopilot
+      - t_s: 31                    # start (s)
+        kind: rudder_doublet       # rudder_doublet | aileron_doublet | elevator_doublet
+        amplitude_rad: 0.1         # first half +amplitude, second half -amplitude
+        duration_s: 2.0
+    expect:                        # optional: what a run should report
+      detect: q                    # fault mode name ("none" for a fault-free flight)
+      within_s: 1.0                # detection delay from the fault becoming observable
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from immukf_sitl.errors import UserError
+from immukf_sitl.estimation.fault_modes import IMU_CHANNELS, FaultMode
+
+FAULT_KINDS = ("zero", "stuck", "bias", "drift")
+MANOEUVRE_KINDS = ("elevator_doublet", "aileron_doublet", "rudder_doublet")
+
+
+class ScenarioError(UserError):
+    """A scenario file that cannot be used; the message is one line."""
+
+
+@dataclass(frozen=True)
+class StartSpec:
+    """Initial conditions (trimmed, wings level)."""
+
+    lat_deg: float = 47.3977
+    lon_deg: float = 8.5456
+    alt_m: float = 150.0
+    airspeed_mps: float = 25.0
+    heading_deg: float = 0.0
+
+
+@dataclass(frozen=True)
+class WaypointSpec:
+    """One waypoint: NED north/east about the start (m), WGS-84 height (m), airspeed (m/s)."""
+
+    north_m: float
+    east_m: float
+    alt_m: float
+    airspeed_mps: float = 25.0
+
+
+@dataclass(frozen=True)
+class FlightPlanSpec:
+    """Waypoints flown in order."""
+
+    waypoints: tuple[WaypointSpec, ...]
+    loop: bool = True
+    acceptance_radius_m: float = 15.0
+
+
+@dataclass(frozen=True)
+class ImuNoiseSpec:
+    """IMU noise (defaults: Beard & McLain ch. 7)."""
+
+    accel_sigma_mps2: float = 0.0245
+    gyro_sigma_radps: float = 0.00227
+    accel_bias_mps2: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    gyro_bias_radps: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class GpsNoiseSpec:
+    """GPS rate and noise (defaults: Beard & McLain ch. 7)."""
+
+    rate_hz: float = 1.0
+    north_east_sigma_m: float = 0.21
+    height_sigma_m: float = 0.40
+    ground_speed_sigma_mps: float = 0.05
+    course_sigma_mps: float = 0.05
+
+
+@dataclass(frozen=True)
+class SensorsSpec:
+    """Both sensors."""
+
+    imu: ImuNoiseSpec = field(default_factory=ImuNoiseSpec)
+    gps: GpsNoiseSpec = field(default_factory=GpsNoiseSpec)
+
+
+@dataclass(frozen=True)
+class FaultSpec:
+    """One injected fault on one or more IMU channels."""
+
+    t_s: float
+    channels: tuple[str, ...]
+    kind: str = "zero"
+    value: float = 0.0
+    end_t_s: float | None = None
+
+    @property
+    def mode(self) -> FaultMode:
+        """The fault mode these channels form."""
+        return FaultMode.from_channels(self.channels)
+
+    def active(self, time_s: float) -> bool:
+        """Whether the fault acts at ``time_s``."""
+        return time_s >= self.t_s and (self.end_t_s is None or time_s < self.end_t_s)
+
+
+@dataclass(frozen=True)
+class ManoeuvreSpec:
+    """A control doublet added to the autopilot's command of one surface."""
+
+    t_s: float
+    kind: str
+    amplitude_rad: float
+    duration_s: float
+
+    @property
+    def control_index(self) -> int:
+        """Index in ``[delta_e, delta_a, delta_r, delta_t]`` (docs/conventions.md)."""
+        return MANOEUVRE_KINDS.index(self.kind)
+
+    def offset_rad(self, time_s: float) -> float:
+        """The doublet's deflection at ``time_s`` (0 outside it)."""
+        elapsed = time_s - self.t_s
+        if elapsed < 0.0 or elapsed >= self.duration_s:
+            return 0.0
+        return self.amplitude_rad if elapsed < 0.5 * self.duration_s else -self.amplitude_rad
+
+
+@dataclass(frozen=True)
+class ExpectSpec:
+    """What a run of this scenario should report."""
+
+    detect: str = "none"
+    within_s: float = 1.0
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A validated scenario file."""
+
+    name: str
+    duration_s: float
+    seed: int
+    flight_plan: FlightPlanSpec
+    start: StartSpec = field(default_factory=StartSpec)
+    sensors: SensorsSpec = field(default_factory=SensorsSpec)
+    faults: tuple[FaultSpec, ...] = ()
+    manoeuvres: tuple[ManoeuvreSpec, ...] = ()
+    expect: ExpectSpec | None = None
+    description: str = ""
+    path: str = ""
+
+
+# -- parsing -------------------------------------------------------------------------------------
+
+
+class _Reader:
+    """Reads one mapping of the file, naming ``file: field`` in every error."""
+
+    def __init__(self, path: str, where: str, data: Any) -> None:
+        self.path, self.where = path, where
+        if not isinstance(data, Mapping):
+            self.fail("", "a mapping", data)
+        self.data = dict(data)
+        self.used: set[str] = set()
+
+    def name(self, key: str) -> str:
+        return f"{self.where}.{key}" if self.where else key
+
+    def fail(self, key: str, expected: str, got: Any) -> None:
+        where = self.name(key) if key else (self.where or "top level")
+        raise ScenarioError(f"{self.path}: {where}: expected {expected}, got {got!r}")
+
+    def has(self, key: str) -> bool:
+        return key in self.data
+
+    def raw(self, key: str, default: Any = ...) -> Any:
+        self.used.add(key)
+        if key not in self.data:
+            if default is ...:
+                raise ScenarioError(f"{self.path}: {self.name(key)}: required field is missing")
+            return default
+        return self.data[key]
+
+    def number(self, key: str, default: Any = ..., *, lo: float = -math.inf,
+               hi: float = math.inf, lo_open: bool = False) -> float:  # fmt: skip
+        value = self.raw(key, default)
+        if (
+            isinstance(value, bool)
+            or not isinstance(value, int | float)
+            or not math.isfinite(value)
+        ):
+            self.fail(key, "a number", value)
+        ok = (value > lo if lo_open else value >= lo) and value <= hi
+        if not ok:
+            bound = f"> {lo}" if lo_open else f">= {lo}"
+            rng = bound if hi == math.inf else f"{bound} and <= {hi}"
+            self.fail(key, f"a number {rng}", value)
+        return float(value)
+
+    def integer(self, key: str, default: Any = ...) -> int:
+        value = self.raw(key, default)
+        if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+            self.fail(key, "a non-negative integer", value)
+        return int(value)
+
+    def string(self, key: str, default: Any = ...) -> str:
+        value = self.raw(key, default)
+        if not isinstance(value, str) or not value.strip():
+            self.fail(key, "a non-empty string", value)
+        return value
+
+    def boolean(self, key: str, default: Any = ...) -> bool:
+        value = self.raw(key, default)
+        if not isinstance(value, bool):
+            self.fail(key, "true or false", value)
+        return value
+
+    def vector3(self, key: str, default: Any = ...) -> tuple[float, float, float]:
+        value = self.raw(key, default)
+        if (
+            not isinstance(value, list | tuple)
+            or len(value) != 3
+            or not all(isinstance(v, int | float) and not isinstance(v, bool) for v in value)
+        ):
+            self.fail(key, "a list of 3 numbers", value)
+        return (float(value[0]), float(value[1]), float(value[2]))
+
+    def child(self, key: str, default: Any = ...) -> _Reader | None:
+        value = self.raw(key, default)
+        if value is None:
+            return None
+        return _Reader(self.path, self.name(key), value)
+
+    def done(self) -> None:
+        unknown = sorted(set(self.data) - self.used)
+        if unknown:
+            raise ScenarioError(
+                f"{self.path}: {self.name(unknown[0])}: unknown field "
+                f"(expected one of {', '.join(sorted(self.used))})"
+            )
+
+
+def _waypoint(path: str, where: str, data: Any) -> WaypointSpec:
+    r = _Reader(path, where, data)
+    wp = WaypointSpec(
+        north_m=r.number("north_m"),
+        east_m=r.number("east_m"),
+        alt_m=r.number("alt_m", lo=-400.0, hi=10000.0),
+        airspeed_mps=r.number("airspeed_mps", 25.0, lo=18.0, hi=32.0),
+    )
+    r.done()
+    return wp
+
+
+def _flight_plan(r: _Reader) -> FlightPlanSpec:
+    raw = r.raw("waypoints")
+    if not isinstance(raw, list) or not raw:
+        r.fail("waypoints", "a non-empty list of waypoints", raw)
+    waypoints = tuple(
+        _waypoint(r.path, f"{r.name('waypoints')}[{i}]", item) for i, item in enumerate(raw)
+    )
+    plan = FlightPlanSpec(
+        waypoints=waypoints,
+        loop=r.boolean("loop", True),
+        acceptance_radius_m=r.number("acceptance_radius_m", 15.0, lo=0.0, lo_open=True),
+    )
+    r.done()
+    return plan
+
+
+def _fault(path: str, where: str, data: Any, duration_s: float) -> FaultSpec:
+    r = _Reader(path, where, data)
+    t_s = r.number("t_s", lo=0.0, hi=duration_s)
+    channels = r.raw("channels")
+    if isinstance(channels, str):
+        channels = [channels]
+    if (
+        not isinstance(channels, list)
+        or not channels
+        or any(c not in IMU_CHANNELS for c in channels)
+        or len(set(channels)) != len(channels)
+    ):
+        r.fail("channels", f"a list of distinct channels from {', '.join(IMU_CHANNELS)}", channels)
+    kind = r.string("kind", "zero")
+    if kind not in FAULT_KINDS:
+        r.fail("kind", f"one of {', '.join(FAULT_KINDS)}", kind)
+    value = r.number("value", 0.0)
+    end_t_s = None
+    if r.has("end_t_s"):
+        end_t_s = r.number("end_t_s", lo=t_s, lo_open=True)
+    r.done()
+    ordered = tuple(c for c in IMU_CHANNELS if c in channels)
+    return FaultSpec(t_s=t_s, channels=ordered, kind=kind, value=value, end_t_s=end_t_s)
+
+
+def _manoeuvre(path: str, where: str, data: Any, duration_s: float) -> ManoeuvreSpec:
+    r = _Reader(path, where, data)
+    kind = r.string("kind")
+    if kind not in MANOEUVRE_KINDS:
+        r.fail("kind", f"one of {', '.join(MANOEUVRE_KINDS)}", kind)
+    spec = ManoeuvreSpec(
+        t_s=r.number("t_s", lo=0.0, hi=duration_s),
+        kind=kind,
+        amplitude_rad=r.number("amplitude_rad", lo=-0.44, hi=0.44),
+        duration_s=r.number("duration_s", lo=0.0, hi=60.0, lo_open=True),
+    )
+    r.done()
+    return spec
+
+
+def parse_scenario(data: Any, path: str = "<scenario>") -> Scenario:
+    """Validate parsed YAML into a :class:`Scenario`; raises :class:`ScenarioError`."""
+    r = _Reader(path, "", data)
+    duration_s = r.number("duration_s", lo=1.0, hi=24 * 3600.0)
+    start_r = r.child("start", {})
+    start = StartSpec(
+        lat_deg=start_r.number("lat_deg", 47.3977, lo=-85.0, hi=85.0),
+        lon_deg=start_r.number("lon_deg", 8.5456, lo=-180.0, hi=180.0),
+        alt_m=start_r.number("alt_m", 150.0, lo=-400.0, hi=10000.0),
+        airspeed_mps=start_r.number("airspeed_mps", 25.0, lo=18.0, hi=32.0),
+        heading_deg=start_r.number("heading_deg", 0.0, lo=-360.0, hi=360.0),
+    )
+    start_r.done()
+    sensors_r = r.child("sensors", {})
+    imu_r = sensors_r.child("imu", {})
+    imu = ImuNoiseSpec(
+        accel_sigma_mps2=imu_r.number("accel_sigma_mps2", 0.0245, lo=0.0),
+        gyro_sigma_radps=imu_r.number("gyro_sigma_radps", 0.00227, lo=0.0),
+        accel_bias_mps2=imu_r.vector3("accel_bias_mps2", (0.0, 0.0, 0.0)),
+        gyro_bias_radps=imu_r.vector3("gyro_bias_radps", (0.0, 0.0, 0.0)),
+    )
+    imu_r.done()
+    gps_r = sensors_r.child("gps", {})
+    gps = GpsNoiseSpec(
+        rate_hz=gps_r.number("rate_hz", 1.0, lo=0.0, hi=100.0, lo_open=True),
+        north_east_sigma_m=gps_r.number("north_east_sigma_m", 0.21, lo=0.0),
+        height_sigma_m=gps_r.number("height_sigma_m", 0.40, lo=0.0),
+        ground_speed_sigma_mps=gps_r.number("ground_speed_sigma_mps", 0.05, lo=0.0),
+        course_sigma_mps=gps_r.number("course_sigma_mps", 0.05, lo=0.0),
+    )
+    gps_r.done()
+    sensors_r.done()
+    raw_faults = r.raw("faults", [])
+    if raw_faults is None:
+        raw_faults = []
+    if not isinstance(raw_faults, list):
+        r.fail("faults", "a list of faults", raw_faults)
+    faults = tuple(
+        _fault(path, f"faults[{i}]", item, duration_s) for i, item in enumerate(raw_faults)
+    )
+    raw_manoeuvres = r.raw("manoeuvres", []) or []
+    if not isinstance(raw_manoeuvres, list):
+        r.fail("manoeuvres", "a list of manoeuvres", raw_manoeuvres)
+    manoeuvres = tuple(
+        _manoeuvre(path, f"manoeuvres[{i}]", item, duration_s)
+        for i, item in enumerate(raw_manoeuvres)
+    )
+    expect = None
+    expect_r = r.child("expect", None)
+    if expect_r is not None:
+        detect = expect_r.string("detect", "none")
+        try:
+            FaultMode.from_name(detect)
+        except ValueError:
+            expect_r.fail("detect", "none or channel names joined by + (e.g. q, x+q)", detect)
+        expect = ExpectSpec(detect=detect, within_s=expect_r.number("within_s", 1.0, lo=0.0))
+        expect_r.done()
+    scenario = Scenario(
+        name=r.string("name"),
+        description=r.string("description", "") if r.has("description") else "",
+        duration_s=duration_s,
+        seed=r.integer("seed"),
+        start=start,
+        flight_plan=_flight_plan(r.child("flight_plan")),
+        sensors=SensorsSpec(imu=imu, gps=gps),
+        faults=faults,
+        manoeuvres=manoeuvres,
+        expect=expect,
+        path=path,
+    )
+    r.done()
+    return scenario
+
+
+def load_scenario(path: str | Path) -> Scenario:
+    """Read and validate a scenario file; raises :class:`ScenarioError` with one line."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ScenarioError(f"{path}: no such scenario file") from None
+    except OSError as exc:
+        raise ScenarioError(f"{path}: cannot read: {exc.strerror}") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f" at line {mark.line + 1}" if mark is not None else ""
+        raise ScenarioError(f"{path}: not valid YAML{where}") from None
+    return parse_scenario(data, str(path))
