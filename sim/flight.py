@@ -20,9 +20,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from immukf_sitl.models.params import AircraftParams, load_aircraft_params
+from immukf_sitl.samples import GpsSample, ImuSample
 from sim.autopilot import Autopilot, AutopilotGains, AutopilotStatus, FlightPlan, NavigationState
 from sim.driver import DT_S, InitialConditions, JsbsimDriver, TrimResult, TruthState
-from sim.sensors import GpsModel, GpsReading, GpsSpec, ImuModel, ImuReading, ImuSpec
+from sim.sensors import GpsModel, GpsSpec, ImuModel, ImuSpec
 
 __all__ = ["Flight", "FlightRecord", "fly"]
 
@@ -40,9 +41,9 @@ class FlightRecord:
     controls : numpy.ndarray
         ``(4,)`` ``[delta_e, delta_a, delta_r (rad), delta_t (0..1)]`` acting from this step
         (docs/conventions.md); equal to ``truth.controls``.
-    imu : ImuReading
+    imu : ImuSample
         IMU sample of this step.
-    gps : GpsReading or None
+    gps : GpsSample or None
         GPS fix, when one is due at this step.
     autopilot : AutopilotStatus or None
         The autopilot's commands that produced ``controls`` (``None`` at step 0, which holds
@@ -52,8 +53,8 @@ class FlightRecord:
     step: int
     truth: TruthState
     controls: np.ndarray
-    imu: ImuReading
-    gps: GpsReading | None
+    imu: ImuSample
+    gps: GpsSample | None
     autopilot: AutopilotStatus | None
 
     @property

@@ -11,6 +11,9 @@
   latitude/longitude (deg), height (m), ground speed (m/s) and course (rad, wrapped); the MAVLink
   layer converts them to GPS_RAW_INT units.
 
+The samples are the project's one sample type, :class:`immukf_sitl.samples.ImuSample` and
+:class:`immukf_sitl.samples.GpsSample` (SI units), which the MAVLink codec encodes.
+
 All randomness comes from an injected :class:`numpy.random.Generator` (STYLE.md rule 11).
 """
 
@@ -22,22 +25,15 @@ from dataclasses import dataclass
 import numpy as np
 import pymap3d
 
+from immukf_sitl.samples import GpsSample, ImuSample
 from sim.driver import TruthState
 
 __all__ = [
     "GpsModel",
-    "GpsReading",
     "GpsSpec",
     "ImuModel",
-    "ImuReading",
     "ImuSpec",
 ]
-
-
-def _readonly(values: np.ndarray | list[float] | tuple[float, ...]) -> np.ndarray:
-    array = np.array(values, dtype=float)
-    array.setflags(write=False)
-    return array
 
 
 def _vector3(name: str, values: tuple[float, float, float]) -> None:
@@ -124,55 +120,6 @@ class GpsSpec:
         return 1.0 / self.rate_hz
 
 
-@dataclass(frozen=True)
-class ImuReading:
-    """One IMU sample in HIGHRES_IMU units (read-only arrays).
-
-    Attributes
-    ----------
-    time_s : float
-        Sample time (s).
-    accel_mps2 : numpy.ndarray
-        ``(3,)`` specific force, body FRD (m/s^2): about ``(0, 0, -9.8)`` in level flight.
-    gyro_radps : numpy.ndarray
-        ``(3,)`` inertial body rates p, q, r (rad/s).
-    """
-
-    time_s: float
-    accel_mps2: np.ndarray
-    gyro_radps: np.ndarray
-
-    def as_array(self) -> np.ndarray:
-        """The 6 IMU channels ``[f_x, f_y, f_z, p, q, r]`` (docs/conventions.md)."""
-        return np.concatenate([self.accel_mps2, self.gyro_radps])
-
-
-@dataclass(frozen=True)
-class GpsReading:
-    """One GPS fix.
-
-    Attributes
-    ----------
-    time_s : float
-        Fix time (s).
-    lat_deg, lon_deg : float
-        Geodetic latitude and longitude, WGS-84 (deg).
-    alt_m : float
-        Height above the WGS-84 ellipsoid (m).
-    ground_speed_mps : float
-        Horizontal speed over the ground (m/s).
-    course_rad : float
-        Course over the ground, wrapped to [-pi, pi] (rad, 0 north, clockwise).
-    """
-
-    time_s: float
-    lat_deg: float
-    lon_deg: float
-    alt_m: float
-    ground_speed_mps: float
-    course_rad: float
-
-
 class ImuModel:
     """Accelerometers and rate gyros with white noise and a constant bias.
 
@@ -190,7 +137,7 @@ class ImuModel:
         self._accel_bias = np.array(spec.accel_bias_mps2, dtype=float)
         self._gyro_bias = np.array(spec.gyro_bias_radps, dtype=float)
 
-    def read(self, truth: TruthState) -> ImuReading:
+    def read(self, truth: TruthState) -> ImuSample:
         """Sample the IMU at a truth state.
 
         Parameters
@@ -200,7 +147,7 @@ class ImuModel:
 
         Returns
         -------
-        ImuReading
+        ImuSample
             Truth plus bias plus noise.
         """
         noise = self._rng.standard_normal(6)
@@ -210,9 +157,7 @@ class ImuModel:
             + self.spec.accel_sigma_mps2 * noise[:3]
         )
         gyro = truth.rates_body_radps + self._gyro_bias + self.spec.gyro_sigma_radps * noise[3:]
-        return ImuReading(
-            time_s=truth.time_s, accel_mps2=_readonly(accel), gyro_radps=_readonly(gyro)
-        )
+        return ImuSample(time_s=truth.time_s, accel_mps2=accel, gyro_radps=gyro)
 
 
 class GpsModel:
@@ -255,7 +200,7 @@ class GpsModel:
         """Whether a fix is due at ``time_s`` (half a simulation step of tolerance)."""
         return time_s >= self._next_time_s - 1e-6
 
-    def read(self, truth: TruthState) -> GpsReading | None:
+    def read(self, truth: TruthState) -> GpsSample | None:
         """Return a fix if one is due at the truth's time, else ``None``.
 
         Parameters
@@ -265,7 +210,7 @@ class GpsModel:
 
         Returns
         -------
-        GpsReading or None
+        GpsSample or None
             The fix (the Gauss-Markov errors advance one period on each fix).
         """
         if not self.due(truth.time_s):
@@ -284,7 +229,7 @@ class GpsModel:
         ground_speed = ground_speed_true + spec.ground_speed_sigma_mps * self._rng.standard_normal()
         course_sigma = spec.course_sigma_mps / max(ground_speed_true, 1.0)
         course = truth.course_rad + course_sigma * self._rng.standard_normal()
-        return GpsReading(
+        return GpsSample(
             time_s=truth.time_s,
             lat_deg=float(lat),
             lon_deg=float(lon),

@@ -149,3 +149,14 @@ def test_same_seed_same_readings_other_seed_other_readings(truth):
 
     assert np.array_equal(readings(7), readings(7))
     assert not np.array_equal(readings(7), readings(8))
+
+
+def test_sensors_produce_the_project_sample_types(truth):
+    from immukf_sitl.samples import GpsSample, ImuSample
+
+    imu = ImuModel(ImuSpec(), np.random.default_rng(SEED)).read(truth)
+    fix = GpsModel(GpsSpec(), np.random.default_rng(SEED)).read(truth)
+    assert type(imu) is ImuSample and type(fix) is GpsSample
+    assert fix.fix_type == 3
+    with pytest.raises(ValueError):
+        imu.accel_mps2[0] = 1.0  # read-only
