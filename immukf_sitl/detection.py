@@ -1,0 +1,118 @@
+"""Fault declaration from mode probabilities: threshold, dwell, clearing, settling time.
+
+The IMM is decision free (paper, section 2.D); a user needs a decision. A fault mode is
+declared when its probability stays at or above ``threshold`` for ``dwell_s``, and cleared when
+it stays below ``clear_threshold`` for ``clear_dwell_s``. Nothing is declared during the first
+``settle_s`` after the estimator starts (its covariances are still converging from the
+initial alignment).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from immukf_sitl.estimation.fault_modes import FaultMode
+
+
+@dataclass(frozen=True)
+class DetectorConfig:
+    """Decision thresholds (defaults documented in README "Detection")."""
+
+    threshold: float = 0.9
+    dwell_s: float = 0.1
+    clear_threshold: float = 0.5
+    clear_dwell_s: float = 5.0
+    settle_s: float = 3.0
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.clear_threshold <= self.threshold < 1.0:
+            raise ValueError(
+                "detection thresholds: expected 0 < clear_threshold <= threshold < 1, got "
+                f"{self.clear_threshold} and {self.threshold}"
+            )
+        if min(self.dwell_s, self.clear_dwell_s, self.settle_s) < 0.0:
+            raise ValueError("detection dwell and settle times must be >= 0")
+
+
+@dataclass(frozen=True)
+class DetectionEvent:
+    """A fault declared (``kind="detected"``) or cleared (``kind="cleared"``)."""
+
+    kind: str
+    mode: FaultMode
+    t_s: float
+    probability: float
+
+    def text(self) -> str:
+        """STATUSTEXT wording, at most 50 characters."""
+        verb = "detected" if self.kind == "detected" else "cleared"
+        return f"IMM: {self.mode.description} fault {verb}, p={self.probability:.2f}"[:50]
+
+
+class FaultDetector:
+    """Turns a stream of mode probabilities into detection and clearing events.
+
+    Parameters
+    ----------
+    modes : sequence of FaultMode
+        The IMM's modes, in the order of the probability vectors; the fault-free mode may be
+        among them (it is never declared).
+    config : DetectorConfig
+    start_s : float
+        Time the estimator started (the settling period counts from it).
+    """
+
+    def __init__(self, modes: Sequence[FaultMode], config: DetectorConfig, start_s: float):
+        self.modes = tuple(modes)
+        self.config = config
+        self.start_s = start_s
+        self.declared: FaultMode | None = None
+        self._above_since: dict[int, float] = {}
+        self._below_since: float | None = None
+
+    def update(self, t_s: float, probabilities: np.ndarray) -> list[DetectionEvent]:
+        """Feed the probabilities at ``t_s``; returns the events this sample caused."""
+        cfg = self.config
+        events: list[DetectionEvent] = []
+        for j, mode in enumerate(self.modes):
+            if mode.bits == 0:
+                continue
+            if probabilities[j] >= cfg.threshold:
+                self._above_since.setdefault(j, t_s)
+            else:
+                self._above_since.pop(j, None)
+        if self.declared is not None:
+            j = self.modes.index(self.declared)
+            p = float(probabilities[j])
+            if p < cfg.clear_threshold:
+                if self._below_since is None:
+                    self._below_since = t_s
+                if t_s - self._below_since >= cfg.clear_dwell_s:
+                    events.append(DetectionEvent("cleared", self.declared, t_s, p))
+                    self.declared = None
+                    self._below_since = None
+            else:
+                self._below_since = None
+        if t_s - self.start_s < cfg.settle_s:
+            return events
+        for j, since in sorted(self._above_since.items(), key=lambda kv: -probabilities[kv[0]]):
+            mode = self.modes[j]
+            if mode == self.declared or t_s - since < cfg.dwell_s:
+                continue
+            if self.declared is not None:
+                events.append(
+                    DetectionEvent(
+                        "cleared",
+                        self.declared,
+                        t_s,
+                        float(probabilities[self.modes.index(self.declared)]),
+                    )
+                )
+            self.declared = mode
+            self._below_since = None
+            events.append(DetectionEvent("detected", mode, t_s, float(probabilities[j])))
+            break
+        return events

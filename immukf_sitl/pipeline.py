@@ -1,0 +1,222 @@
+"""The estimator service's logic without sockets: samples in, estimates and events out.
+
+:class:`EstimatorPipeline` takes the decoded stream (SERVO_OUTPUT_RAW, GPS_RAW_INT and
+HIGHRES_IMU as :mod:`immukf_sitl.samples`), sets the NED origin at the first GPS fix, aligns
+the chosen filter variant on the first IMU sample that has a fix beside it, runs one filter step
+per IMU sample and turns mode probabilities into detection events. The MAVLink service
+(:mod:`immukf_sitl.mavlink.serve`) and the tlog replay are thin shells around it, so both give
+the same answers.
+
+Stream rules, each counted in :class:`StreamCounters`: an IMU sample not newer than the last is
+dropped (out of order or duplicate); a gap of several IMU periods is bridged by predict-only
+steps (up to ``max_gap_s``, beyond which the filter re-aligns); the filter waits for the first
+actuator sample and the first GPS fix. After the detector's settling time the mode-matched
+filters are re-seeded from the fault-free one (paper, section 2.A).
+"""
+
+from __future__ import annotations
+
+import time
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from immukf_sitl.detection import DetectionEvent, DetectorConfig, FaultDetector
+from immukf_sitl.estimation.fault_modes import FaultMode
+from immukf_sitl.models.earth import NedOrigin, geodetic_to_ned, ned_to_geodetic
+from immukf_sitl.models.params import AircraftParams
+from immukf_sitl.samples import ActuatorSample, GpsSample, ImuSample
+from immukf_sitl.variants import (
+    Estimator,
+    FilterTuning,
+    NavSolution,
+    SensorNoise,
+    align,
+    build_estimator,
+)
+
+IMU_PERIOD_S = 0.01
+
+
+@dataclass(frozen=True)
+class PipelineConfig:
+    """What the service runs: the variant, its tuning and the detection rule."""
+
+    variant: str = "imm"
+    true_mode: FaultMode | None = None
+    tuning: FilterTuning = field(default_factory=FilterTuning)
+    noise: SensorNoise = field(default_factory=SensorNoise)
+    detector: DetectorConfig = field(default_factory=DetectorConfig)
+    min_align_speed_mps: float = 10.0
+    max_gap_s: float = 1.0
+
+
+@dataclass
+class StreamCounters:
+    """What the pipeline saw and dropped (reported in the service's stats line)."""
+
+    imu_samples: int = 0
+    gps_fixes: int = 0
+    actuator_samples: int = 0
+    steps: int = 0
+    out_of_order: int = 0
+    gap_steps: int = 0
+    realignments: int = 0
+    bad_samples: int = 0
+
+
+@dataclass(frozen=True)
+class EstimateOutput:
+    """One filter step's result, ready to publish.
+
+    Attributes
+    ----------
+    t_s : float
+        IMU sample time (s, the sender's clock).
+    nav : NavSolution
+        Fused estimate, NED about ``origin``.
+    lat_deg, lon_deg, alt_m : float
+        Fused position, WGS-84.
+    modes : tuple of FaultMode
+    mode_probabilities : ndarray
+    events : tuple of DetectionEvent
+    step_us : float
+        Wall time of the filter step (us).
+    """
+
+    t_s: float
+    nav: NavSolution
+    lat_deg: float
+    lon_deg: float
+    alt_m: float
+    modes: tuple[FaultMode, ...]
+    mode_probabilities: np.ndarray
+    events: tuple[DetectionEvent, ...]
+    step_us: float
+
+
+class EstimatorPipeline:
+    """Samples in, :class:`EstimateOutput` per IMU sample out (after alignment).
+
+    Parameters
+    ----------
+    params : AircraftParams
+        Aircraft (model coefficients and the servo channel map).
+    config : PipelineConfig
+    """
+
+    def __init__(self, params: AircraftParams, config: PipelineConfig | None = None) -> None:
+        self.params = params
+        self.config = config if config is not None else PipelineConfig()
+        self.counters = StreamCounters()
+        self.origin: NedOrigin | None = None
+        self.estimator: Estimator | None = None
+        self.detector: FaultDetector | None = None
+        self._controls: np.ndarray | None = None
+        self._gps_queue: deque[GpsSample] = deque(maxlen=16)
+        self._last_imu_s: float | None = None
+        self._restart_at_s: float | None = None
+
+    @property
+    def aligned(self) -> bool:
+        """Whether the filter is running."""
+        return self.estimator is not None
+
+    def on_actuators(self, sample: ActuatorSample) -> None:
+        """Latest servo outputs: the controls acting from the next IMU sample on."""
+        self.counters.actuator_samples += 1
+        try:
+            self._controls = self.params.actuators.pwm_to_controls(sample.pwm_us)
+        except ValueError:
+            self.counters.bad_samples += 1
+
+    def on_gps(self, sample: GpsSample) -> None:
+        """A fix; the first one sets the NED origin."""
+        self.counters.gps_fixes += 1
+        if self.origin is None:
+            self.origin = NedOrigin(sample.lat_deg, sample.lon_deg, sample.alt_m)
+        self._gps_queue.append(sample)
+
+    def _gps_observation(self, t_s: float) -> np.ndarray | None:
+        """The newest queued fix not later than ``t_s`` (older ones are superseded)."""
+        fix = None
+        while self._gps_queue and self._gps_queue[0].time_s <= t_s + 0.5 * IMU_PERIOD_S:
+            fix = self._gps_queue.popleft()
+        if fix is None or self.origin is None:
+            return None
+        ned = geodetic_to_ned(fix.lat_deg, fix.lon_deg, fix.alt_m, self.origin)
+        return np.array([ned[0], ned[1], ned[2], fix.ground_speed_mps, fix.course_rad])
+
+    def on_imu(self, sample: ImuSample) -> EstimateOutput | None:
+        """Run the filter on one IMU sample; None while waiting or for a dropped sample."""
+        counters = self.counters
+        counters.imu_samples += 1
+        t_s = sample.time_s
+        if self._last_imu_s is not None and t_s <= self._last_imu_s + 1e-6:
+            counters.out_of_order += 1
+            return None
+        previous_s = self._last_imu_s
+        self._last_imu_s = t_s
+        if self._controls is None:
+            return None
+        imu = sample.as_array()
+        gps = self._gps_observation(t_s)
+        if self.estimator is not None and previous_s is not None:
+            gap_steps = int(round((t_s - previous_s) / IMU_PERIOD_S)) - 1
+            if gap_steps * IMU_PERIOD_S > self.config.max_gap_s:
+                counters.realignments += 1
+                self.estimator = None
+            elif gap_steps > 0:
+                counters.gap_steps += gap_steps
+                self._bridge_gap(previous_s, gap_steps, imu)
+        if self.estimator is None:
+            if gps is None or gps[3] < self.config.min_align_speed_mps:
+                return None
+            self._align(t_s, imu, gps)
+        return self._step(t_s, imu, gps)
+
+    def _align(self, t_s: float, imu: np.ndarray, gps: np.ndarray) -> None:
+        assert self.origin is not None and self._controls is not None
+        cfg = self.config
+        estimator = build_estimator(
+            cfg.variant, self.params, self.origin, cfg.true_mode, cfg.noise, cfg.tuning
+        )
+        # the alignment sample itself is the first step's measurement: start one period earlier
+        nav = align(t_s - IMU_PERIOD_S, imu, gps)
+        estimator.initialize_from(nav, imu if cfg.variant == "ukf3" else self._controls)
+        self.estimator = estimator
+        self.detector = FaultDetector(estimator.modes, cfg.detector, t_s)
+        self._restart_at_s = t_s + cfg.detector.settle_s
+
+    def _bridge_gap(self, previous_s: float, gap_steps: int, imu: np.ndarray) -> None:
+        """Predict across missing IMU samples with the last controls (no measurement)."""
+        assert self.estimator is not None and self._controls is not None
+        nan = np.full(6, np.nan)  # a non-finite measurement makes the UKF skip its update
+        for k in range(1, gap_steps + 1):
+            self.estimator.step(previous_s + k * IMU_PERIOD_S, self._controls, nan, None)
+
+    def _step(self, t_s: float, imu: np.ndarray, gps: np.ndarray | None) -> EstimateOutput:
+        assert self.estimator is not None and self.detector is not None
+        assert self._controls is not None and self.origin is not None
+        start = time.perf_counter()
+        est = self.estimator.step(t_s, self._controls, imu, gps)
+        if self._restart_at_s is not None and t_s >= self._restart_at_s:
+            est = self.estimator.restart_from_fault_free()
+            self._restart_at_s = None
+        step_us = (time.perf_counter() - start) * 1e6
+        self.counters.steps += 1
+        nav = self.estimator.navigation()
+        lat, lon, alt = ned_to_geodetic(nav.position_ned_m, self.origin)
+        events = self.detector.update(t_s, est.mode_probabilities)
+        return EstimateOutput(
+            t_s,
+            nav,
+            float(lat),
+            float(lon),
+            float(alt),
+            self.estimator.modes,
+            est.mode_probabilities,
+            tuple(events),
+            step_us,
+        )
