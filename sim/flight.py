@@ -10,17 +10,23 @@ Timing (see :mod:`sim.driver`): record ``k`` holds the true state at ``t_k``, th
 act from ``t_k`` (so the forces, the IMU's specific force and the controls of one record belong
 together), and the IMU sample of ``t_k``. The autopilot computes the controls of record ``k+1``
 from the navigation state of record ``k`` (one step of computation delay).
+
+Manoeuvres (a scenario's control doublets, :class:`~immukf_sitl.scenario.ManoeuvreSpec`) are added
+to the autopilot's command of their surface for the record whose time falls inside the doublet,
+then clipped to the surface limits; the autopilot does not see them (its integrators and slew
+limits act on its own command), so it reacts to the doublet only through the aircraft's motion.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from immukf_sitl.models.params import AircraftParams, load_aircraft_params
 from immukf_sitl.samples import GpsSample, ImuSample
+from immukf_sitl.scenario import ManoeuvreSpec
 from sim.autopilot import Autopilot, AutopilotGains, AutopilotStatus, FlightPlan, NavigationState
 from sim.driver import DT_S, InitialConditions, JsbsimDriver, TrimResult, TruthState
 from sim.sensors import GpsModel, GpsSpec, ImuModel, ImuSpec
@@ -85,6 +91,8 @@ class Flight:
         Autopilot gains.
     dt_s : float, optional
         Step (s), default 0.01.
+    manoeuvres : sequence of ManoeuvreSpec, optional
+        Control doublets added on top of the autopilot's commands (default none).
     """
 
     def __init__(
@@ -97,6 +105,7 @@ class Flight:
         gps_spec: GpsSpec | None = None,
         gains: AutopilotGains | None = None,
         dt_s: float = DT_S,
+        manoeuvres: Sequence[ManoeuvreSpec] = (),
     ) -> None:
         self.params = params if params is not None else load_aircraft_params()
         self.plan = plan
@@ -110,6 +119,7 @@ class Flight:
             gps_spec if gps_spec is not None else GpsSpec(), np.random.default_rng(gps_seed)
         )
         self._gains = gains
+        self.manoeuvres = tuple(manoeuvres)
         self._autopilot: Autopilot | None = None
         self._last: FlightRecord | None = None
 
@@ -160,6 +170,27 @@ class Flight:
         )
         return self._record(0, truth, None)
 
+    def apply_manoeuvres(self, controls: np.ndarray, time_s: float) -> np.ndarray:
+        """Add the doublets active at ``time_s`` to the controls, clipped to the limits.
+
+        Parameters
+        ----------
+        controls : numpy.ndarray
+            ``(4,)`` ``[delta_e, delta_a, delta_r (rad), delta_t (0..1)]`` from the autopilot.
+        time_s : float
+            Time of the record the controls act in (s).
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(4,)`` controls with the doublets, within ``params.actuators`` limits.
+        """
+        out = np.array(controls, dtype=float)
+        for manoeuvre in self.manoeuvres:
+            out[manoeuvre.control_index] += manoeuvre.offset_rad(time_s)
+        act = self.params.actuators
+        return np.clip(out, act.lower_limits, act.upper_limits)
+
     def step(self, navigation: NavigationState | None = None) -> FlightRecord:
         """Advance one step.
 
@@ -178,6 +209,8 @@ class Flight:
             raise RuntimeError("Flight.start() has not been called")
         nav = navigation if navigation is not None else NavigationState.from_truth(self._last.truth)
         controls = self._autopilot.update(nav)
+        if self.manoeuvres:
+            controls = self.apply_manoeuvres(controls, self._last.time_s + self.driver.dt_s)
         truth = self.driver.step(controls)
         return self._record(self._last.step + 1, truth, self._autopilot.status)
 
@@ -191,6 +224,7 @@ def fly(
     imu_spec: ImuSpec | None = None,
     gps_spec: GpsSpec | None = None,
     gains: AutopilotGains | None = None,
+    manoeuvres: Sequence[ManoeuvreSpec] = (),
 ) -> Iterator[FlightRecord]:
     """Fly a plan on truth navigation and yield one record per 0.01 s step.
 
@@ -202,7 +236,7 @@ def fly(
         Seed of all sensor noise.
     duration_s : float
         Simulated time (s); records from 0 to ``duration_s`` inclusive.
-    initial, params, imu_spec, gps_spec, gains
+    initial, params, imu_spec, gps_spec, gains, manoeuvres
         As for :class:`Flight`.
 
     Yields
@@ -218,6 +252,7 @@ def fly(
         imu_spec=imu_spec,
         gps_spec=gps_spec,
         gains=gains,
+        manoeuvres=manoeuvres,
     )
     record = flight.start()
     yield record

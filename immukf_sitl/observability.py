@@ -1,0 +1,162 @@
+"""When an injected IMU fault becomes observable: the faulted reading leaves the noise band.
+
+A zeroed channel reads what a healthy one would while the true value is within the sensor's
+noise of zero: a zeroed q gyro in steady level flight, or a zeroed y accelerometer in
+coordinated flight, is invisible. Detection delay is therefore measured from the later of the
+fault's start and the first time the true channel leaves a band of ``n_sigma`` standard
+deviations of that sensor's white noise around zero (issue 4, DESIGN.md section 3).
+
+The same rule covers every fault kind through the deviation it causes, faulted minus healthy
+reading (noise aside): ``zero`` ``-truth``, ``stuck`` ``held - truth``, ``bias`` ``value`` and
+``drift`` ``value (t - t_s)``. A fault on several channels is observable as soon as any of its
+channels is.
+
+Truth comes as arrays, so that the in-process simulation (``FlightRecord.truth``) and a
+recorded tlog (HIL_STATE_QUATERNION) both feed it: times ``(N,)`` in seconds and the six true
+channels ``(N, 6)`` ``[f_x, f_y, f_z (m/s^2), p, q, r (rad/s)]`` in the order of
+``docs/conventions.md``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from immukf_sitl.estimation.fault_modes import IMU_CHANNELS
+from immukf_sitl.scenario import FaultSpec, ImuNoiseSpec
+
+__all__ = [
+    "DEFAULT_N_SIGMA",
+    "channel_sigma",
+    "fault_deviation",
+    "fault_observable_time_s",
+    "first_observable_time_s",
+]
+
+#: Width of the band around zero, in standard deviations of the sensor noise (issue 4).
+DEFAULT_N_SIGMA = 5.0
+
+
+def first_observable_time_s(
+    times_s: np.ndarray,
+    true_values: np.ndarray,
+    t_from_s: float,
+    sigma: float,
+    n_sigma: float = DEFAULT_N_SIGMA,
+) -> float | None:
+    """The first time at or after ``t_from_s`` when ``|true value| > n_sigma * sigma``.
+
+    Parameters
+    ----------
+    times_s : numpy.ndarray
+        ``(N,)`` sample times (s), increasing.
+    true_values : numpy.ndarray
+        ``(N,)`` true channel values (or deviations), in the unit of ``sigma``.
+    t_from_s : float
+        Start of the search (s), e.g. the fault's start.
+    sigma : float
+        Standard deviation of the sensor's white noise.
+    n_sigma : float, optional
+        Band half-width in standard deviations (default 5).
+
+    Returns
+    -------
+    float or None
+        The time (s), or ``None`` if the values never leave the band from ``t_from_s`` on.
+    """
+    times = np.asarray(times_s, dtype=float)
+    values = np.asarray(true_values, dtype=float)
+    if times.shape != values.shape or times.ndim != 1:
+        raise ValueError(
+            f"times_s and true_values: expected equal 1-D shapes, got {times.shape} and "
+            f"{values.shape}"
+        )
+    outside = (times >= t_from_s) & (np.abs(values) > n_sigma * sigma)
+    index = np.flatnonzero(outside)
+    return float(times[index[0]]) if index.size else None
+
+
+def channel_sigma(channel: str, imu: ImuNoiseSpec) -> float:
+    """White-noise standard deviation of one IMU channel (m/s^2 for x, y, z; rad/s for p, q, r)."""
+    if channel not in IMU_CHANNELS:
+        raise ValueError(f"channel {channel!r}: expected one of {', '.join(IMU_CHANNELS)}")
+    return imu.accel_sigma_mps2 if channel in ("x", "y", "z") else imu.gyro_sigma_radps
+
+
+def fault_deviation(fault: FaultSpec, times_s: np.ndarray, true_channel: np.ndarray) -> np.ndarray:
+    """Faulted minus healthy reading of one channel, noise aside (0 where the fault is inactive).
+
+    Parameters
+    ----------
+    fault : FaultSpec
+        The fault (its ``kind``, ``value``, ``t_s`` and ``end_t_s``).
+    times_s : numpy.ndarray
+        ``(N,)`` sample times (s), increasing.
+    true_channel : numpy.ndarray
+        ``(N,)`` true values of one of the fault's channels.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(N,)`` deviation in the channel's unit.
+    """
+    times = np.asarray(times_s, dtype=float)
+    truth = np.asarray(true_channel, dtype=float)
+    active = np.array([fault.active(float(t)) for t in times], dtype=bool)
+    deviation = np.zeros_like(truth)
+    if not active.any():
+        return deviation
+    if fault.kind == "zero":
+        deviation = -truth
+    elif fault.kind == "stuck":
+        deviation = truth[np.flatnonzero(active)[0]] - truth
+    elif fault.kind == "bias":
+        deviation = np.full_like(truth, fault.value)
+    elif fault.kind == "drift":
+        deviation = fault.value * (times - fault.t_s)
+    else:  # pragma: no cover - the scenario loader admits only the kinds above
+        raise ValueError(f"fault kind {fault.kind!r}: unknown")
+    return np.where(active, deviation, 0.0)
+
+
+def fault_observable_time_s(
+    fault: FaultSpec,
+    times_s: np.ndarray,
+    true_imu: np.ndarray,
+    imu: ImuNoiseSpec,
+    n_sigma: float = DEFAULT_N_SIGMA,
+) -> float | None:
+    """When a fault first makes any of its channels differ from a healthy one by ``n_sigma``.
+
+    Parameters
+    ----------
+    fault : FaultSpec
+        A scenario's fault.
+    times_s : numpy.ndarray
+        ``(N,)`` truth times (s), increasing.
+    true_imu : numpy.ndarray
+        ``(N, 6)`` true ``[f_x, f_y, f_z (m/s^2), p, q, r (rad/s)]``: the specific force at the
+        IMU and the inertial body rates.
+    imu : ImuNoiseSpec
+        The scenario's IMU noise (``scenario.sensors.imu``).
+    n_sigma : float, optional
+        Band half-width in standard deviations (default 5).
+
+    Returns
+    -------
+    float or None
+        The earliest time (s) at or after ``fault.t_s`` (and before ``fault.end_t_s``), or
+        ``None`` if the fault stays within the band while it lasts (or the truth ends first).
+    """
+    truth = np.asarray(true_imu, dtype=float)
+    if truth.ndim != 2 or truth.shape[1] != len(IMU_CHANNELS):
+        raise ValueError(f"true_imu: expected shape (N, 6), got {truth.shape}")
+    earliest: float | None = None
+    for channel in fault.channels:
+        column = truth[:, IMU_CHANNELS.index(channel)]
+        deviation = fault_deviation(fault, times_s, column)
+        t = first_observable_time_s(
+            times_s, deviation, fault.t_s, channel_sigma(channel, imu), n_sigma
+        )
+        if t is not None and (earliest is None or t < earliest):
+            earliest = t
+    return earliest
