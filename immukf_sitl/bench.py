@@ -199,8 +199,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
         "bench",
         help="time the 7-mode IMM-UKF step (augmented, additive, filterpy reference)",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description=(
+            "Time one IMM-UKF step of the 7-mode bank over the Aerosonde model (100 Hz IMU, a "
+            "GPS fix per 100 steps) in the augmented and additive forms, and the same bank "
+            "built from filterpy's IMMEstimator for comparison. Prints medians and 99th "
+            "percentiles in microseconds and the real-time margin at 100 Hz."
+        ),
     )
     parser.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     parser.add_argument(

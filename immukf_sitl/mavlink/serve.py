@@ -1,0 +1,462 @@
+"""``immukf-sitl serve``: the estimator service on MAVLink.
+
+Consumes HIGHRES_IMU, GPS_RAW_INT and SERVO_OUTPUT_RAW from ``--in``, runs the IMM-UKF
+(:class:`~immukf_sitl.pipeline.EstimatorPipeline`) once per IMU sample and publishes the fused
+state, the mode probabilities and detection events to every ``--out`` (a ground station). On its
+input link it answers each HIGHRES_IMU with a SYSTEM_TIME whose ``time_boot_ms`` is that
+sample's time: the lock-step acknowledgement the sim waits for.
+
+It never crashes on what arrives: bad CRCs, malformed or non-finite fields, out-of-order or
+duplicate samples, gaps and a ground station's own traffic are counted and reported in the
+periodic stats line and in ``--json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import select
+import signal
+import sys
+import time
+from collections import Counter, deque
+from dataclasses import dataclass, field
+from typing import TextIO
+
+import numpy as np
+
+from immukf_sitl.detection import DetectionEvent, DetectorConfig
+from immukf_sitl.errors import UserError
+from immukf_sitl.estimation.fault_modes import FaultMode
+from immukf_sitl.mavlink import codec
+from immukf_sitl.mavlink.publish import OutputRates, Publisher, heartbeat
+from immukf_sitl.mavlink.wire import (
+    ESTIMATOR_COMPONENT_ID,
+    ESTIMATOR_SYSTEM_ID,
+    ConnectionError_,
+    MavConnection,
+    MavMessage,
+    connect,
+    mavlink,
+    open_tlog_writer,
+)
+from immukf_sitl.models.params import load_aircraft_params
+from immukf_sitl.pipeline import EstimateOutput, EstimatorPipeline, PipelineConfig
+from immukf_sitl.variants import VARIANTS, FilterTuning
+
+HELP = """\
+Run the IMM-UKF estimator on a MAVLink stream and publish its results.
+
+Consumes HIGHRES_IMU (100 Hz), GPS_RAW_INT and SERVO_OUTPUT_RAW from --in, runs one filter
+step per IMU sample, and publishes to every --out: HEARTBEAT, ATTITUDE, ATTITUDE_QUATERNION,
+GLOBAL_POSITION_INT (fused), NAMED_VALUE_FLOAT MP_NONE, MP_AX, MP_AY, MP_AZ, MP_P, MP_Q, MP_R
+(mode probabilities), NAMED_VALUE_INT IMM_FAULT and STATUSTEXT on each detection and clearing.
+Each HIGHRES_IMU is acknowledged up the input link with a SYSTEM_TIME (lock-step with the sim).
+Bad packets, out-of-order samples and gaps are counted in the stats line, never fatal.
+
+example:
+  immukf-sitl serve --in udpin:127.0.0.1:14561 --out udpout:127.0.0.1:14550
+"""
+
+DEFAULT_IN = "udpin:127.0.0.1:14561"
+DEFAULT_OUT = "udpout:127.0.0.1:14550"
+STATS_WINDOW = 20_000
+
+
+@dataclass
+class ServiceStats:
+    """Counters and timings of the service (the stats line and ``--json``)."""
+
+    received: Counter = field(default_factory=Counter)
+    bad_packets: int = 0
+    decode_errors: int = 0
+    ignored: int = 0
+    send_errors: int = 0
+    step_us: deque = field(default_factory=lambda: deque(maxlen=STATS_WINDOW))
+    lag_us: deque = field(default_factory=lambda: deque(maxlen=STATS_WINDOW))
+    events: list = field(default_factory=list)
+
+    def timing(self) -> dict:
+        """Mean, median and p99 of step time and lag (us) over the recent window."""
+
+        def summary(values: deque) -> dict:
+            if not values:
+                return {"mean": None, "median": None, "p99": None}
+            arr = np.fromiter(values, float)
+            return {
+                "mean": float(arr.mean()),
+                "median": float(np.median(arr)),
+                "p99": float(np.percentile(arr, 99)),
+            }
+
+        return {"step_us": summary(self.step_us), "lag_us": summary(self.lag_us)}
+
+
+class EstimatorService:
+    """The serve loop around a pipeline, its connections and a publisher.
+
+    Parameters
+    ----------
+    pipeline : EstimatorPipeline
+    inbound : MavConnection
+        Where the sensor stream arrives (acknowledgements go back the same way).
+    outbound : list of MavConnection
+        Ground stations.
+    publisher : Publisher
+    tlog_path : str, optional
+        Record everything published here.
+    log : text stream
+        Where the stats line goes (stderr).
+    stats_interval_s : float
+        Wall seconds between stats lines (0: never).
+    """
+
+    def __init__(
+        self,
+        pipeline: EstimatorPipeline,
+        inbound: MavConnection,
+        outbound: list[MavConnection],
+        publisher: Publisher,
+        tlog_path: str | None = None,
+        log: TextIO = sys.stderr,
+        stats_interval_s: float = 5.0,
+    ) -> None:
+        self.pipeline = pipeline
+        self.inbound = inbound
+        self.outbound = outbound
+        self.publisher = publisher
+        self.stats = ServiceStats()
+        self.log = log
+        self.stats_interval_s = stats_interval_s
+        self._mav = mavlink.MAVLink(None, ESTIMATOR_SYSTEM_ID, ESTIMATOR_COMPONENT_ID)
+        self._tlog = open_tlog_writer(tlog_path) if tlog_path else None
+        self._last_stats = time.monotonic()
+        self._last_wall_heartbeat = 0.0
+        self._last_output: EstimateOutput | None = None
+        self._stop = False
+
+    # -- receiving -------------------------------------------------------------------------
+
+    def handle(self, msg: MavMessage, received_ns: int) -> None:
+        """Process one inbound message."""
+        kind = msg.get_type()
+        self.stats.received[kind] += 1
+        if kind == "BAD_DATA":
+            self.stats.bad_packets += 1
+            return
+        if msg.get_srcComponent() == ESTIMATOR_COMPONENT_ID:
+            self.stats.ignored += 1  # our own traffic looped back
+            return
+        try:
+            if kind == "HIGHRES_IMU":
+                self._on_imu(codec.decode_highres_imu(msg), msg, received_ns)
+            elif kind == "GPS_RAW_INT":
+                self.pipeline.on_gps(codec.decode_gps_raw_int(msg))
+            elif kind == "SERVO_OUTPUT_RAW":
+                self.pipeline.on_actuators(codec.decode_servo_output_raw(msg))
+            else:
+                self.stats.ignored += 1
+        except codec.DecodeError:
+            self.stats.decode_errors += 1
+            if kind == "HIGHRES_IMU":
+                self._acknowledge(msg.time_usec * 1e-6)
+
+    def _on_imu(self, sample, msg: MavMessage, received_ns: int) -> None:
+        out = self.pipeline.on_imu(sample)
+        if out is not None:
+            self._publish(self.publisher.messages(out))
+            self.stats.step_us.append(out.step_us)
+            self.stats.events.extend(out.events)
+            self._last_output = out
+            for event in out.events:
+                self._say(f"serve: t={event.t_s:.2f} s {event.text()}")
+        self._acknowledge(sample.time_s)
+        self.stats.lag_us.append((time.perf_counter_ns() - received_ns) / 1e3)
+
+    def _acknowledge(self, t_s: float) -> None:
+        """SYSTEM_TIME back up the input link: processed up to ``t_s``."""
+        ack = mavlink.MAVLink_system_time_message(0, int(round(t_s * 1000.0)) & 0xFFFFFFFF)
+        self._send(self.inbound, ack.pack(self._mav))
+
+    # -- sending ---------------------------------------------------------------------------
+
+    def _send(self, conn: MavConnection, buf: bytes) -> None:
+        try:
+            conn.write(buf)
+        except OSError:
+            self.stats.send_errors += 1
+
+    def _publish(self, msgs: list[MavMessage]) -> None:
+        for msg in msgs:
+            buf = msg.pack(self._mav)
+            for conn in self.outbound:
+                self._send(conn, buf)
+            if self._tlog is not None:
+                self._tlog.write(buf)
+
+    # -- the loop --------------------------------------------------------------------------
+
+    def poll(self, timeout_s: float) -> int:
+        """Wait up to ``timeout_s`` for input and process everything available."""
+        handled = 0
+        readable, _, _ = select.select([self.inbound.port.fileno()], [], [], timeout_s)
+        if not readable:
+            return 0
+        while True:
+            received_ns = time.perf_counter_ns()
+            msg = self.inbound.recv_msg()
+            if msg is None:
+                break
+            self.handle(msg, received_ns)
+            handled += 1
+        return handled
+
+    def stop(self) -> None:
+        """Ask :meth:`run` to return after the current poll."""
+        self._stop = True
+
+    def run(self, idle_exit_s: float = 0.0) -> None:
+        """Serve until :meth:`stop` (or ``idle_exit_s`` without input, when > 0)."""
+        last_input = time.monotonic()
+        while not self._stop:
+            if self.poll(0.2):
+                last_input = time.monotonic()
+            now = time.monotonic()
+            if now - self._last_wall_heartbeat >= 1.0 and self._last_output is None:
+                self._publish([heartbeat()])  # before data flows, still visible to a GCS
+                self._last_wall_heartbeat = now
+            if self.stats_interval_s and now - self._last_stats >= self.stats_interval_s:
+                self._say(self.stats_line())
+                self._last_stats = now
+            if idle_exit_s > 0 and now - last_input > idle_exit_s:
+                break
+        if self._tlog is not None:
+            self._tlog.close()
+
+    # -- reporting -------------------------------------------------------------------------
+
+    def stats_line(self) -> str:
+        """One line: progress, timing, and what was dropped or bad."""
+        c = self.pipeline.counters
+        timing = self.stats.timing()
+        step, lag = timing["step_us"], timing["lag_us"]
+        t = f"{self._last_output.t_s:.1f}" if self._last_output else "-"
+        mode = self.pipeline.detector.declared if self.pipeline.detector else None
+
+        def fmt(v: float | None) -> str:
+            return "-" if v is None else f"{v:.0f}"
+
+        return (
+            f"serve: t={t} s steps={c.steps} step mean {fmt(step['mean'])} us "
+            f"p99 {fmt(step['p99'])} us lag p99 {fmt(lag['p99'])} us "
+            f"dropped={c.out_of_order} gaps={c.gap_steps} bad={self.stats.bad_packets} "
+            f"decode_err={self.stats.decode_errors} ignored={self.stats.ignored} "
+            f"fault={mode.name if mode else 'none'}"
+        )
+
+    def summary(self) -> dict:
+        """Everything for ``--json``."""
+        c = self.pipeline.counters
+        est = self.pipeline.estimator
+        return {
+            "variant": self.pipeline.config.variant,
+            "aligned": self.pipeline.aligned,
+            "counters": vars(c).copy(),
+            "received": dict(self.stats.received),
+            "bad_packets": self.stats.bad_packets,
+            "decode_errors": self.stats.decode_errors,
+            "ignored": self.stats.ignored,
+            "send_errors": self.stats.send_errors,
+            **self.stats.timing(),
+            "filter_diagnostics": est.imm.diagnostics.as_dict() if est is not None else None,
+            "events": [_event_dict(e) for e in self.stats.events],
+        }
+
+    def _say(self, text: str) -> None:
+        print(text, file=self.log, flush=True)
+
+
+def _event_dict(event: DetectionEvent) -> dict:
+    return {
+        "kind": event.kind,
+        "mode": event.mode.name,
+        "t_s": round(event.t_s, 4),
+        "probability": event.probability,
+    }
+
+
+# -- command line ----------------------------------------------------------------------------
+
+
+def add_filter_arguments(parser: argparse.ArgumentParser) -> None:
+    """Options shared by ``serve`` and ``replay``: variant, tuning and detection."""
+    tuning, detector = FilterTuning(), DetectorConfig()
+    group = parser.add_argument_group("filter and detection")
+    group.add_argument(
+        "--variant",
+        choices=VARIANTS,
+        default="imm",
+        help="paper's filter variant: ukf1 (aero model matched to --true-mode), ukf2 (aero "
+        "model, fault-free), ukf3 (INS equations, fault-free), imm (UKF-4, 7 modes; default)",
+    )
+    group.add_argument(
+        "--true-mode", default=None, help="fault mode UKF-1 is matched to (e.g. q, x+q)"
+    )
+    group.add_argument(
+        "--threshold",
+        type=float,
+        default=detector.threshold,
+        help=f"mode probability that declares a fault (default {detector.threshold})",
+    )
+    group.add_argument(
+        "--dwell",
+        type=float,
+        default=detector.dwell_s,
+        help=f"seconds above the threshold before declaring (default {detector.dwell_s})",
+    )
+    group.add_argument(
+        "--clear-threshold",
+        type=float,
+        default=detector.clear_threshold,
+        help="probability below which a declared fault clears "
+        f"(default {detector.clear_threshold})",
+    )
+    group.add_argument(
+        "--clear-dwell",
+        type=float,
+        default=detector.clear_dwell_s,
+        help="seconds below the clear threshold before clearing "
+        f"(default {detector.clear_dwell_s})",
+    )
+    group.add_argument(
+        "--settle",
+        type=float,
+        default=detector.settle_s,
+        help=f"seconds after alignment with no declarations (default {detector.settle_s})",
+    )
+    group.add_argument(
+        "--recovery-probability",
+        type=float,
+        default=tuning.recovery_probability,
+        help="per-step Markov probability fault -> fault-free (default "
+        f"{tuning.recovery_probability}; see README 'Tuning')",
+    )
+    group.add_argument(
+        "--params", default=None, help="aircraft parameter YAML (default: the packaged Aerosonde)"
+    )
+
+
+def pipeline_from_args(args: argparse.Namespace) -> EstimatorPipeline:
+    """Build the pipeline the options describe; user mistakes become :class:`UserError`."""
+    true_mode = None
+    if args.variant == "ukf1":
+        if not args.true_mode:
+            raise UserError("--variant ukf1 needs --true-mode (the fault mode it is matched to)")
+        try:
+            true_mode = FaultMode.from_name(args.true_mode)
+        except ValueError as exc:
+            raise UserError(f"--true-mode: {exc}") from None
+    try:
+        detector = DetectorConfig(
+            threshold=args.threshold,
+            dwell_s=args.dwell,
+            clear_threshold=args.clear_threshold,
+            clear_dwell_s=args.clear_dwell,
+            settle_s=args.settle,
+        )
+        tuning = FilterTuning(recovery_probability=args.recovery_probability)
+        tuning.transition((FaultMode(0), FaultMode(1)))
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
+    config = PipelineConfig(
+        variant=args.variant, true_mode=true_mode, tuning=tuning, detector=detector
+    )
+    return EstimatorPipeline(load_aircraft_params(args.params), config)
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add the ``serve`` subcommand."""
+    parser = subparsers.add_parser(
+        "serve",
+        help="run the IMM-UKF estimator service on a MAVLink stream",
+        description=HELP,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument(
+        "--in",
+        dest="inbound",
+        default=DEFAULT_IN,
+        help=f"sensor stream, a pymavlink connection string (default {DEFAULT_IN})",
+    )
+    parser.add_argument(
+        "--out",
+        action="append",
+        default=None,
+        help=f"ground station to publish to; repeat for several (default {DEFAULT_OUT})",
+    )
+    parser.add_argument("--tlog", default=None, help="also record every published message here")
+    parser.add_argument(
+        "--attitude-hz", type=float, default=OutputRates.attitude_hz, help="ATTITUDE rate"
+    )
+    parser.add_argument(
+        "--position-hz",
+        type=float,
+        default=OutputRates.position_hz,
+        help="GLOBAL_POSITION_INT rate",
+    )
+    parser.add_argument(
+        "--probabilities-hz",
+        type=float,
+        default=OutputRates.probabilities_hz,
+        help="NAMED_VALUE_FLOAT mode-probability rate",
+    )
+    parser.add_argument(
+        "--stats-interval", type=float, default=5.0, help="seconds between stats lines (0: none)"
+    )
+    parser.add_argument(
+        "--idle-exit",
+        type=float,
+        default=0.0,
+        help="exit after this many seconds without input (default 0: run until interrupted)",
+    )
+    parser.add_argument(
+        "--json", action="store_true", help="print one JSON object of statistics at exit"
+    )
+    add_filter_arguments(parser)
+    parser.set_defaults(handler=_main)
+
+
+def _main(args: argparse.Namespace) -> int:
+    pipeline = pipeline_from_args(args)
+    for name in ("attitude_hz", "position_hz", "probabilities_hz"):
+        if not 0.0 < getattr(args, name) <= 100.0 or not math.isfinite(getattr(args, name)):
+            raise UserError(f"--{name.replace('_', '-')}: expected a rate in (0, 100] Hz")
+    rates = OutputRates(args.attitude_hz, args.position_hz, args.probabilities_hz)
+    try:
+        inbound = connect(args.inbound, ESTIMATOR_SYSTEM_ID, ESTIMATOR_COMPONENT_ID)
+        outbound = [
+            connect(url, ESTIMATOR_SYSTEM_ID, ESTIMATOR_COMPONENT_ID, input_=False)
+            for url in (args.out or [DEFAULT_OUT])
+        ]
+    except ConnectionError_ as exc:
+        raise UserError(str(exc)) from None
+    service = EstimatorService(
+        pipeline,
+        inbound,
+        outbound,
+        Publisher(rates),
+        tlog_path=args.tlog,
+        stats_interval_s=args.stats_interval,
+    )
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: service.stop())
+    print(
+        f"serve: {args.variant} on {args.inbound} -> {', '.join(args.out or [DEFAULT_OUT])}",
+        file=sys.stderr,
+    )
+    service.run(idle_exit_s=args.idle_exit)
+    print(service.stats_line(), file=sys.stderr)
+    if args.json:
+        print(json.dumps(service.summary()))
+    return 0
