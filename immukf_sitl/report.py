@@ -1,0 +1,251 @@
+"""The summary of a run or a replay: faults, detections, false alarms, errors, timing; a plot.
+
+Inputs are plain arrays and records, so that ``run`` (which reads the tlogs the processes wrote)
+and ``replay`` (which runs the pipeline itself) give the same summary for the same flight.
+
+Definitions (README "Reading a summary"):
+
+- ``observable_t_s``: the first time at or after a fault's start at which the faulted channel
+  differs from a healthy one by more than 5 sigma of its sensor noise (a zeroed q gyro in
+  straight and level flight reads what a healthy one would);
+- detection delay: from the later of the fault's start and ``observable_t_s`` to the first
+  declaration of the fault's mode;
+- false alarm: a declaration of any mode other than the one the active faults form (any
+  declaration when no fault is active);
+- estimation errors over the flight after alignment: position as the NED distance to truth,
+  attitude as the norm of the wrapped roll, pitch and yaw errors.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from immukf_sitl.estimation.angles import wrap_angle
+from immukf_sitl.estimation.fault_modes import FaultMode
+from immukf_sitl.models.earth import NedOrigin, geodetic_to_ned
+from immukf_sitl.observability import fault_observable_time_s
+from immukf_sitl.scenario import ExpectSpec, FaultSpec, ImuNoiseSpec
+from immukf_sitl.tlog import TruthSample
+
+
+@dataclass(frozen=True)
+class EventRecord:
+    """A detection or clearing as reported by the estimator."""
+
+    kind: str
+    mode: str
+    t_s: float
+    probability: float
+
+
+@dataclass(frozen=True)
+class EstimateTrack:
+    """The estimator's published attitude and position over time."""
+
+    attitude_t_s: np.ndarray
+    euler_rad: np.ndarray
+    position_t_s: np.ndarray
+    lat_lon_alt: np.ndarray
+
+
+def _active_mode(faults: Sequence[FaultSpec], t_s: float) -> FaultMode:
+    channels = {c for f in faults if f.active(t_s) for c in f.channels}
+    return FaultMode.from_channels(channels)
+
+
+def _match_times(t_ref: np.ndarray, t_other: np.ndarray, tol_s: float = 0.006) -> np.ndarray:
+    """Index into ``t_other`` of the sample nearest each ``t_ref`` (-1 if none within tol)."""
+    if t_other.size == 0:
+        return np.full(t_ref.shape, -1)
+    idx = np.clip(np.searchsorted(t_other, t_ref), 1, max(t_other.size - 1, 1))
+    left = idx - 1
+    nearer = np.where(np.abs(t_other[left] - t_ref) <= np.abs(t_other[idx] - t_ref), left, idx)
+    return np.where(np.abs(t_other[nearer] - t_ref) <= tol_s, nearer, -1)
+
+
+def estimation_errors(truth: Sequence[TruthSample], track: EstimateTrack) -> dict:
+    """Max and mean-square position (m) and attitude (deg) errors against truth."""
+    t_truth = np.array([s.t_s for s in truth])
+    out = {"pos_max_m": None, "pos_mse_m2": None, "att_max_deg": None, "att_mse_deg2": None}
+    if t_truth.size == 0:
+        return out
+    origin = NedOrigin(truth[0].lat_deg, truth[0].lon_deg, truth[0].alt_m)
+    idx = _match_times(track.attitude_t_s, t_truth)
+    ok = idx >= 0
+    if np.any(ok):
+        true_euler = np.array([truth[i].euler_rad for i in idx[ok]])
+        err = np.degrees(wrap_angle(track.euler_rad[ok] - true_euler))
+        norm2 = np.sum(err**2, axis=1)
+        out["att_max_deg"] = float(np.sqrt(norm2.max()))
+        out["att_mse_deg2"] = float(norm2.mean())
+    idx = _match_times(track.position_t_s, t_truth)
+    ok = idx >= 0
+    if np.any(ok):
+        true_lla = np.array([(truth[i].lat_deg, truth[i].lon_deg, truth[i].alt_m) for i in idx[ok]])
+        est = geodetic_to_ned(*track.lat_lon_alt[ok].T, origin)
+        tru = geodetic_to_ned(*true_lla.T, origin)
+        norm2 = np.sum((est - tru) ** 2, axis=0)
+        out["pos_max_m"] = float(np.sqrt(norm2.max()))
+        out["pos_mse_m2"] = float(norm2.mean())
+    return out
+
+
+def summarize(
+    scenario_name: str,
+    faults: Sequence[FaultSpec],
+    truth: Sequence[TruthSample],
+    events: Sequence[EventRecord],
+    track: EstimateTrack,
+    step_us: dict,
+    imu_noise: ImuNoiseSpec | None = None,
+    expect: ExpectSpec | None = None,
+) -> dict:
+    """The JSON-ready summary of one flight (see the module docstring)."""
+    imu_noise = imu_noise if imu_noise is not None else ImuNoiseSpec()
+    t_truth = np.array([s.t_s for s in truth])
+    true_imu = np.array(
+        [np.concatenate([s.specific_force_mps2, s.rates_radps]) for s in truth]
+    ).reshape(-1, 6)
+    detections = [e for e in events if e.kind == "detected"]
+    fault_rows = []
+    for fault in faults:
+        observable = fault_observable_time_s(fault, t_truth, true_imu, imu_noise)
+        mode = fault.mode.name
+        start = max(fault.t_s, observable) if observable is not None else None
+        first = next((e for e in detections if e.mode == mode and e.t_s >= fault.t_s - 1e-9), None)
+        delay = None if first is None or start is None else first.t_s - start
+        fault_rows.append(
+            {
+                "channels": list(fault.channels),
+                "kind": fault.kind,
+                "t_s": fault.t_s,
+                "mode": mode,
+                "observable_t_s": observable,
+                "detected_t_s": None if first is None else first.t_s,
+                "detection_delay_s": delay,
+            }
+        )
+    false_alarms = [e for e in detections if e.mode != _active_mode(faults, e.t_s).name]
+    summary = {
+        "scenario": scenario_name,
+        "faults": fault_rows,
+        "detections": [
+            {"mode": e.mode, "t_s": e.t_s, "probability": e.probability} for e in detections
+        ],
+        "clearings": [
+            {"mode": e.mode, "t_s": e.t_s, "probability": e.probability}
+            for e in events
+            if e.kind == "cleared"
+        ],
+        "false_alarms": len(false_alarms),
+        "false_alarm_detections": [{"mode": e.mode, "t_s": e.t_s} for e in false_alarms],
+        "est_error": estimation_errors(truth, track),
+        "step_us": {"median": step_us.get("median"), "p99": step_us.get("p99")},
+    }
+    if expect is not None:
+        summary["expectation"] = check_expectation(summary, expect)
+    return summary
+
+
+def check_expectation(summary: dict, expect: ExpectSpec) -> dict:
+    """Whether a summary meets the scenario's ``expect`` block."""
+    if expect.detect == "none":
+        met = summary["false_alarms"] == 0 and not summary["detections"]
+        return {"detect": "none", "met": met}
+    rows = [r for r in summary["faults"] if r["mode"] == FaultMode.from_name(expect.detect).name]
+    ok = bool(rows) and all(
+        r["detection_delay_s"] is not None and r["detection_delay_s"] <= expect.within_s
+        for r in rows
+    )
+    return {
+        "detect": expect.detect,
+        "within_s": expect.within_s,
+        "met": ok and summary["false_alarms"] == 0,
+    }
+
+
+def human_summary(summary: dict) -> str:
+    """A few lines for people."""
+    lines = [f"scenario {summary['scenario']}"]
+    for row in summary["faults"]:
+        obs = row["observable_t_s"]
+        det = row["detected_t_s"]
+        delay = row["detection_delay_s"]
+        lines.append(
+            f"  fault {row['kind']} {'+'.join(row['channels'])} at {row['t_s']:.2f} s, "
+            f"observable {'never' if obs is None else f'{obs:.2f} s'}, "
+            f"detected {'never' if det is None else f'{det:.2f} s'}"
+            + ("" if delay is None else f" (delay {delay:.2f} s)")
+        )
+    if not summary["faults"]:
+        lines.append("  no fault injected")
+    found = ", ".join(f"{d['mode']}@{d['t_s']:.2f}s" for d in summary["detections"])
+    lines.append(f"  detections: {found or 'none'}; false alarms: {summary['false_alarms']}")
+    err = summary["est_error"]
+    if err["pos_max_m"] is not None:
+        lines.append(
+            f"  estimate error: position max {err['pos_max_m']:.2f} m "
+            f"(MSE {err['pos_mse_m2']:.2f} m^2), attitude max {err['att_max_deg']:.2f} deg "
+            f"(MSE {err['att_mse_deg2']:.3f} deg^2)"
+        )
+    st = summary["step_us"]
+    if st["median"] is not None:
+        lines.append(f"  filter step: median {st['median']:.0f} us, p99 {st['p99']:.0f} us")
+    if "expectation" in summary:
+        lines.append(f"  expectation {'MET' if summary['expectation']['met'] else 'NOT MET'}")
+    return "\n".join(lines)
+
+
+def plot_summary(
+    path: str,
+    summary: dict,
+    probability_t_s: np.ndarray,
+    probabilities: dict[str, np.ndarray],
+    truth: Sequence[TruthSample],
+    track: EstimateTrack,
+) -> None:
+    """PNG: mode probabilities (top) and attitude error (bottom), faults and detections marked."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (ax_p, ax_e) = plt.subplots(2, 1, figsize=(10, 6.5), sharex=True)
+    for name, values in sorted(probabilities.items()):
+        ax_p.plot(probability_t_s, values, label=name, lw=1.2)
+    ax_p.set_ylabel("mode probability")
+    ax_p.set_ylim(-0.02, 1.02)
+    ax_p.legend(loc="center left", fontsize=8, ncol=1, bbox_to_anchor=(1.0, 0.5))
+    ax_p.set_title(f"{summary['scenario']}: IMM-UKF mode probabilities and attitude error")
+    t_truth = np.array([s.t_s for s in truth])
+    idx = _match_times(track.attitude_t_s, t_truth)
+    ok = idx >= 0
+    if np.any(ok):
+        true_euler = np.array([truth[i].euler_rad for i in idx[ok]])
+        err = np.degrees(wrap_angle(track.euler_rad[ok] - true_euler))
+        for k, label in enumerate(("roll", "pitch", "yaw")):
+            ax_e.plot(track.attitude_t_s[ok], err[:, k], label=label, lw=1.0)
+    ax_e.set_ylabel("attitude error (deg)")
+    ax_e.set_xlabel("time (s)")
+    ax_e.legend(loc="center left", fontsize=8, bbox_to_anchor=(1.0, 0.5))
+    for row in summary["faults"]:
+        for ax in (ax_p, ax_e):
+            ax.axvline(row["t_s"], color="red", ls="--", lw=1)
+            if row["observable_t_s"] is not None:
+                ax.axvline(row["observable_t_s"], color="orange", ls=":", lw=1)
+    for det in summary["detections"]:
+        ax_p.annotate(
+            f"{det['mode']} detected",
+            (det["t_s"], 1.0),
+            xytext=(5, -12),
+            textcoords="offset points",
+            fontsize=8,
+            color="black",
+        )
+        ax_p.axvline(det["t_s"], color="black", lw=0.8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

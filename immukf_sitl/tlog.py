@@ -1,0 +1,236 @@
+"""Reading and writing the project's telemetry logs (tlogs).
+
+A tlog is a sequence of records: an 8-byte big-endian microsecond timestamp, then one MAVLink
+frame. The project writes two kinds:
+
+- a **flight log**: the sensor stream exactly as the estimator received it (HEARTBEAT,
+  GPS_RAW_INT, SERVO_OUTPUT_RAW, HIGHRES_IMU with any injected fault), the sim's truth
+  (HIL_STATE_QUATERNION, which never travels to the estimator) and the fault proxy's
+  annotations (STATUSTEXT ``FAULT <kind> <channels> t=<s>`` and ``FAULT END ...``, from the
+  proxy's component, also never forwarded), and a first STATUSTEXT ``SCENARIO <name>``. Record
+  timestamps are sim time.
+- an **estimator log**: what ``serve`` published (ATTITUDE, GLOBAL_POSITION_INT,
+  NAMED_VALUE_FLOAT ``MP_*``, NAMED_VALUE_INT ``IMM_FAULT``, STATUSTEXT).
+"""
+
+from __future__ import annotations
+
+import re
+import struct
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from immukf_sitl.errors import UserError
+from immukf_sitl.mavlink import codec
+from immukf_sitl.mavlink.wire import MavMessage, open_tlog_reader
+from immukf_sitl.samples import ActuatorSample, GpsSample, ImuSample
+from immukf_sitl.scenario import FaultSpec
+
+MG_TO_MPS2 = 9.80665e-3
+FAULT_TEXT = re.compile(
+    r"^FAULT (?P<end>END )?(?P<kind>\w+) (?P<channels>[xyzpqr+]+) t=(?P<t>[\d.]+)"
+)
+
+
+SCENARIO_TEXT = re.compile(r"^SCENARIO (?P<name>\S+)")
+
+
+def scenario_annotation(name: str) -> str:
+    """STATUSTEXT naming the scenario of a flight log (first record)."""
+    return f"SCENARIO {name}"[:50]
+
+
+def fault_annotation(kind: str, channels: Iterable[str], t_s: float, end: bool = False) -> str:
+    """The proxy's STATUSTEXT marking a fault's start or end (at most 50 characters)."""
+    return f"FAULT {'END ' if end else ''}{kind} {'+'.join(channels)} t={t_s:.3f}"
+
+
+@dataclass(frozen=True)
+class TruthSample:
+    """The sim's truth at one step (from HIL_STATE_QUATERNION)."""
+
+    t_s: float
+    lat_deg: float
+    lon_deg: float
+    alt_m: float
+    euler_rad: np.ndarray
+    rates_radps: np.ndarray
+    velocity_ned_mps: np.ndarray
+    specific_force_mps2: np.ndarray
+
+    def channel(self, index: int) -> float:
+        """True value of IMU channel ``index`` (x, y, z specific force; p, q, r)."""
+        return float(self.specific_force_mps2[index] if index < 3 else self.rates_radps[index - 3])
+
+
+@dataclass(frozen=True)
+class FaultRecord:
+    """A fault annotation of the proxy."""
+
+    kind: str
+    channels: tuple[str, ...]
+    t_s: float
+    value: float = 0.0
+    end_t_s: float | None = None
+
+    def spec(self) -> FaultSpec:
+        """As the scenario's :class:`~immukf_sitl.scenario.FaultSpec`."""
+        return FaultSpec(self.t_s, self.channels, self.kind, self.value, self.end_t_s)
+
+
+@dataclass
+class FlightLog:
+    """A flight tlog, parsed: the stream in arrival order, truth and faults."""
+
+    stream: list[ImuSample | GpsSample | ActuatorSample] = field(default_factory=list)
+    truth: list[TruthSample] = field(default_factory=list)
+    faults: list[FaultRecord] = field(default_factory=list)
+    bad_records: int = 0
+    scenario: str | None = None
+
+
+def truth_from_message(msg: MavMessage) -> TruthSample:
+    """HIL_STATE_QUATERNION to a :class:`TruthSample`."""
+    euler = codec.quaternion_to_euler(np.array(msg.attitude_quaternion, dtype=float))
+    return TruthSample(
+        t_s=msg.time_usec * 1e-6,
+        lat_deg=msg.lat * 1e-7,
+        lon_deg=msg.lon * 1e-7,
+        alt_m=msg.alt * 1e-3,
+        euler_rad=euler,
+        rates_radps=np.array([msg.rollspeed, msg.pitchspeed, msg.yawspeed]),
+        velocity_ned_mps=np.array([msg.vx, msg.vy, msg.vz]) / 100.0,
+        specific_force_mps2=np.array([msg.xacc, msg.yacc, msg.zacc]) * MG_TO_MPS2,
+    )
+
+
+def _messages(path: str | Path) -> Iterable[MavMessage]:
+    path = Path(path)
+    if not path.is_file():
+        raise UserError(f"{path}: no such tlog")
+    conn = open_tlog_reader(str(path))
+    try:
+        while True:
+            msg = conn.recv_msg()
+            if msg is None:
+                return
+            yield msg
+    finally:
+        conn.close()
+
+
+def read_flight_log(path: str | Path) -> FlightLog:
+    """Parse a flight tlog (see the module docstring)."""
+    log = FlightLog()
+    open_faults: dict[tuple[str, tuple[str, ...]], int] = {}
+    for msg in _messages(path):
+        kind = msg.get_type()
+        try:
+            if kind == "HIGHRES_IMU":
+                log.stream.append(codec.decode_highres_imu(msg))
+            elif kind == "GPS_RAW_INT":
+                log.stream.append(codec.decode_gps_raw_int(msg))
+            elif kind == "SERVO_OUTPUT_RAW":
+                log.stream.append(codec.decode_servo_output_raw(msg))
+            elif kind == "HIL_STATE_QUATERNION":
+                log.truth.append(truth_from_message(msg))
+            elif kind == "STATUSTEXT":
+                named = SCENARIO_TEXT.match(msg.text)
+                if named and log.scenario is None:
+                    log.scenario = named["name"]
+                match = FAULT_TEXT.match(msg.text)
+                if match:
+                    channels = tuple(match["channels"].split("+"))
+                    key = (match["kind"], channels)
+                    t_s = float(match["t"])
+                    if match["end"]:
+                        if key in open_faults:
+                            i = open_faults.pop(key)
+                            f = log.faults[i]
+                            log.faults[i] = FaultRecord(f.kind, f.channels, f.t_s, f.value, t_s)
+                    else:
+                        open_faults[key] = len(log.faults)
+                        value = float(match["v"]) if match["v"] else 0.0
+                        log.faults.append(FaultRecord(match["kind"], channels, t_s, value))
+            elif kind == "BAD_DATA":
+                log.bad_records += 1
+        except codec.DecodeError:
+            log.bad_records += 1
+    return log
+
+
+@dataclass
+class EstimatorLog:
+    """What ``serve`` published, as arrays over time."""
+
+    attitude_t_s: np.ndarray
+    euler_rad: np.ndarray
+    position_t_s: np.ndarray
+    lat_lon_alt: np.ndarray
+    probability_t_s: np.ndarray
+    probabilities: dict[str, np.ndarray]
+    fault_events: list[tuple[float, int]]
+    texts: list[str]
+
+
+def read_estimator_log(path: str | Path) -> EstimatorLog:
+    """Parse an estimator tlog."""
+    att_t, att, pos_t, pos, texts, events = [], [], [], [], [], []
+    probs: dict[int, dict[str, float]] = {}
+    for msg in _messages(path):
+        kind = msg.get_type()
+        if kind == "ATTITUDE":
+            att_t.append(msg.time_boot_ms / 1000.0)
+            att.append((msg.roll, msg.pitch, msg.yaw))
+        elif kind == "GLOBAL_POSITION_INT":
+            pos_t.append(msg.time_boot_ms / 1000.0)
+            pos.append((msg.lat * 1e-7, msg.lon * 1e-7, msg.alt * 1e-3))
+        elif kind == "NAMED_VALUE_FLOAT" and msg.name.startswith("MP_"):
+            probs.setdefault(msg.time_boot_ms, {})[msg.name] = msg.value
+        elif kind == "NAMED_VALUE_INT" and msg.name == "IMM_FAULT":
+            events.append((msg.time_boot_ms / 1000.0, int(msg.value)))
+        elif kind == "STATUSTEXT":
+            texts.append(msg.text)
+    names = sorted({n for row in probs.values() for n in row})
+    times = sorted(probs)
+    return EstimatorLog(
+        np.array(att_t),
+        np.array(att).reshape(-1, 3),
+        np.array(pos_t),
+        np.array(pos).reshape(-1, 3),
+        np.array(times) / 1000.0,
+        {n: np.array([probs[t].get(n, np.nan) for t in times]) for n in names},
+        events,
+        texts,
+    )
+
+
+def write_tlog(path: str | Path, records: Iterable[tuple[float, bytes]]) -> int:
+    """Write ``(time_s, frame)`` records (timestamps as given, in microseconds); returns bytes."""
+    size = 0
+    with open(path, "wb") as fh:
+        for t_s, frame in records:
+            chunk = struct.pack(">Q", max(0, int(round(t_s * 1e6)))) + frame
+            fh.write(chunk)
+            size += len(chunk)
+    return size
+
+
+def read_records(path: str | Path) -> list[tuple[float, bytes]]:
+    """Raw ``(time_s, frame)`` records of a tlog (frames re-packed as received)."""
+    out = []
+    conn = open_tlog_reader(str(path))
+    try:
+        while True:
+            msg = conn.recv_msg()
+            if msg is None:
+                break
+            if msg.get_type() == "BAD_DATA":
+                continue
+            out.append((getattr(msg, "_timestamp", 0.0), bytes(msg.get_msgbuf())))
+    finally:
+        conn.close()
+    return out
