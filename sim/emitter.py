@@ -9,12 +9,15 @@ Every ``time_usec`` is sim time. The sim speaks as system 1, component 1, with a
 ``MAV_TYPE_FIXED_WING`` and ``MAV_AUTOPILOT_INVALID`` (a vehicle for QGroundControl, which needs
 a component-1 heartbeat with a vehicle type, without a flight stack to negotiate with).
 
-Truth never goes on the wire: with ``--tlog FILE`` the sim records every frame it sends plus one
-HIL_STATE_QUATERNION per step (true attitude quaternion, inertial body rates, position, NED
-velocity, airspeed, and the true specific force in ``xacc/yacc/zacc`` as mG), whose
-``time_usec`` is the step's sim time, so that a reader aligns it with the HIGHRES_IMU of the same
-step. The truth frames carry component :data:`TRUTH_COMPONENT_ID` with their own sequence
-numbers, so the wire stream of component 1 has no sequence gaps in the log or on the wire.
+Truth never goes on the wire: with ``--tlog FILE`` the sim records a first STATUSTEXT
+``SCENARIO <name>`` (:func:`immukf_sitl.tlog.scenario_annotation`), every frame it sends, and
+one HIL_STATE_QUATERNION per step (true attitude quaternion, inertial body rates, position, NED
+velocity, airspeed, and the true specific force in ``xacc/yacc/zacc`` as mG) whose ``time_usec``
+is the step's sim time, right after the step's frames. Every record is stamped with its step's
+sim time (:mod:`immukf_sitl.mavlink.tlog`), so a reader aligns truth and stream and merges this log
+with the fault proxy's. The annotation and the truth frames carry component
+:data:`TRUTH_COMPONENT_ID` with their own sequence numbers, so the stream of component 1 has no
+sequence gaps, in the log or on the wire.
 
 Pacing (DESIGN.md section 4; the split px4-jsbsim-bridge and ArduPilot's SIM_JSBSim use):
 
@@ -65,6 +68,7 @@ from immukf_sitl.models.earth import isa_density_unchecked
 from immukf_sitl.models.params import Actuators
 from immukf_sitl.samples import ActuatorSample
 from immukf_sitl.scenario import load_scenario
+from immukf_sitl.tlog import scenario_annotation
 from sim.driver import DT_S
 from sim.flight import Flight, FlightRecord
 from sim.scenario_flight import flight_from_scenario
@@ -153,6 +157,11 @@ class StepEncoder:
         out.append(servo_output_raw_message(self.actuator_sample(record)))
         out.append(highres_imu_message(record.imu))
         return out
+
+    def scenario_message(self, name: str) -> MavMessage:
+        """STATUSTEXT naming the scenario (first record of a tlog; never sent)."""
+        text = scenario_annotation(name).encode()
+        return mavlink.MAVLink_statustext_message(mavlink.MAV_SEVERITY_INFO, text)
 
     def truth_message(self, record: FlightRecord) -> MavMessage:
         """HIL_STATE_QUATERNION of the record's truth (for the tlog only).
@@ -333,6 +342,8 @@ class SimEmitter:
         Recorder of everything sent plus the truth.
     progress_period_s : float, optional
         Wall seconds between progress lines on stderr (``0``: none).
+    scenario_name : str, optional
+        Name in the tlog's first record.
     """
 
     MODES = ("lockstep", "free-run", "realtime")
@@ -348,6 +359,7 @@ class SimEmitter:
         speed: float = 1.0,
         tlog: TlogWriter | None = None,
         progress_period_s: float = 3.0,
+        scenario_name: str = "",
     ) -> None:
         if mode not in self.MODES:
             raise ValueError(f"mode: expected one of {', '.join(self.MODES)}, got {mode!r}")
@@ -360,11 +372,13 @@ class SimEmitter:
         self.speed = float(speed)
         self.tlog = tlog
         self.progress_period_s = float(progress_period_s)
+        self.scenario_name = scenario_name
         self.encoder = StepEncoder(flight.params.actuators)
         self.sent: Counter[str] = Counter()
         self.received: Counter[str] = Counter()
         self.stop_signal = 0
-        self._truth_mav = mavlink.MAVLink(self._TlogFile(tlog), SIM_SYSTEM_ID, TRUTH_COMPONENT_ID)
+        self._truth_file = self._TlogFile(tlog)
+        self._truth_mav = mavlink.MAVLink(self._truth_file, SIM_SYSTEM_ID, TRUTH_COMPONENT_ID)
         self._fd = connection.fd
 
     class _TlogFile:
@@ -372,10 +386,11 @@ class SimEmitter:
 
         def __init__(self, tlog: TlogWriter | None) -> None:
             self.tlog = tlog
+            self.time_s = 0.0
 
         def write(self, buf: bytes) -> None:
             if self.tlog is not None:
-                self.tlog.write(buf)
+                self.tlog.write(buf, self.time_s)
 
     # -- acknowledgements ----------------------------------------------------------------------
 
@@ -428,8 +443,9 @@ class SimEmitter:
             mav.send(message)
             self.sent[message.get_type()] += 1
             if self.tlog is not None:
-                self.tlog.write(message.get_msgbuf())
+                self.tlog.write(message.get_msgbuf(), record.time_s)
         if self.tlog is not None:
+            self._truth_file.time_s = record.time_s
             self._truth_mav.send(self.encoder.truth_message(record))
 
     def _progress(self, record: FlightRecord, started: float, sent_steps: int) -> None:
@@ -454,6 +470,8 @@ class SimEmitter:
             Lock-step only: the estimator stopped acknowledging.
         """
         record = self.flight.start()
+        if self.tlog is not None:
+            self._truth_mav.send(self.encoder.scenario_message(self.scenario_name))
         dt_s = self.flight.driver.dt_s
         started = time.monotonic()
         next_progress = started + self.progress_period_s
@@ -618,6 +636,7 @@ def run_sim(args: argparse.Namespace) -> int:
         ack_timeout_s=args.ack_timeout,
         speed=args.speed if args.speed is not None else 1.0,
         tlog=tlog,
+        scenario_name=scenario.name,
     )
 
     def on_signal(signum: int, frame: FrameType | None) -> None:

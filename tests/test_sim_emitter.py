@@ -24,7 +24,7 @@ from immukf_sitl.mavlink.wire import (
     open_tlog_reader,
 )
 from immukf_sitl.scenario import load_scenario
-from sim.emitter import AckTimeout, LockStep, SimEmitter, StepEncoder
+from sim.emitter import TRUTH_COMPONENT_ID, AckTimeout, LockStep, SimEmitter, StepEncoder
 from sim.scenario_flight import flight_from_scenario
 
 SCENARIO = Path(__file__).resolve().parents[1] / "scenarios" / "q_gyro_zeroed.yaml"
@@ -143,9 +143,10 @@ def test_truth_is_only_in_the_tlog(free_run):
     logged = []
     while (message := reader.recv_match()) is not None:
         logged.append(message)
+    assert logged[0].get_type() == "STATUSTEXT" and logged[0].text == "SCENARIO q-gyro-zeroed"
     truth = [m for m in logged if m.get_type() == "HIL_STATE_QUATERNION"]
-    sent = [m for m in logged if m.get_type() != "HIL_STATE_QUATERNION"]
-    assert len(truth) == STEPS and summary["tlog_records"] == len(logged)
+    sent = [m for m in logged if m.get_srcComponent() == 1]
+    assert len(truth) == STEPS and summary["tlog_records"] == len(logged) == len(sent) + STEPS + 1
     # every frame sent is in the log, byte for byte, in order
     assert [bytes(m.get_msgbuf()) for m in sent] == datagrams
     # one truth per step, with the step's time, after the step's frames
@@ -154,8 +155,17 @@ def test_truth_is_only_in_the_tlog(free_run):
     imu = [m for m in sent if m.get_type() == "HIGHRES_IMU"]
     assert all(position[id(t)] == position[id(i)] + 1 for t, i in zip(truth, imu, strict=True))
     # truth frames have their own component and an unbroken sequence
-    assert {(m.get_srcSystem(), m.get_srcComponent()) for m in truth} == {(1, 25)}
-    assert [m.get_seq() for m in truth] == [k % 256 for k in range(STEPS)]
+    assert {(m.get_srcSystem(), m.get_srcComponent()) for m in truth} == {(1, TRUTH_COMPONENT_ID)}
+    assert [m.get_seq() for m in truth] == [(k + 1) % 256 for k in range(STEPS)]
+    # records are stamped with sim time: the step's time for the step's frames and truth
+    step_time = 0.0
+    for message in logged[1:]:
+        if message.get_type() == "HIGHRES_IMU":
+            step_time = message.time_usec * 1e-6
+        if message.get_type() in ("HIGHRES_IMU", "HIL_STATE_QUATERNION"):
+            assert message._timestamp == pytest.approx(step_time, abs=1e-6)
+        else:
+            assert step_time - 1e-6 <= message._timestamp <= step_time + 0.0100001
 
 
 def test_the_stream_is_the_in_process_flight(free_run):

@@ -1,9 +1,12 @@
-"""Recording MAVLink frames into a tlog, the ecosystem's log format (MAVProxy, QGC, pymavlink).
+"""Streaming tlog writer: frames recorded as they are sent or heard (``--tlog`` options).
 
-Each record is an 8-byte big-endian UNIX time in microseconds followed by one raw MAVLink frame
-(DESIGN.md section 7); :func:`immukf_sitl.mavlink.wire.open_tlog_reader` reads it back. The
-record time is the wall clock when the frame was sent or heard, as MAVProxy writes it; the
-simulation time travels inside the messages (``time_usec``, ``time_boot_ms``).
+A tlog is a sequence of records: an 8-byte big-endian UNIX time in microseconds, then one raw
+MAVLink frame (DESIGN.md section 7; :mod:`immukf_sitl.tlog` reads them and batch-writes them).
+The project's processes stamp records with **sim time** (seconds since the start of the flight,
+so the stamps start at the UNIX epoch): the tlogs of one run then merge by record time, and a
+reader aligns truth, stream and estimates without wall-clock jitter. Without a time the wall
+clock is used, as MAVProxy does. A reader can follow a run that is still going after each
+:meth:`TlogWriter.flush`.
 """
 
 from __future__ import annotations
@@ -42,18 +45,19 @@ class TlogWriter:
             raise UserError(f"{self.path}: cannot write the tlog: {exc.strerror}") from None
         self.records = 0
 
-    def write(self, frame: bytes | bytearray, unix_time_s: float | None = None) -> None:
+    def write(self, frame: bytes | bytearray, time_s: float | None = None) -> None:
         """Append one frame.
 
         Parameters
         ----------
         frame : bytes
-            A packed MAVLink frame (``msg.get_msgbuf()`` after sending, or bytes heard).
-        unix_time_s : float, optional
-            Record time (s since 1970); default now.
+            A packed MAVLink frame (``msg.get_msgbuf()`` after sending, or the bytes heard).
+        time_s : float, optional
+            Record time: seconds of sim time (>= 0); default the wall clock (UNIX time).
         """
-        t = time.time() if unix_time_s is None else unix_time_s
-        self._file.write(_TIMESTAMP.pack(int(t * 1e6)) + bytes(frame))
+        t = time.time() if time_s is None else time_s
+        stamp = max(0, int(round(t * 1e6)))
+        self._file.write(_TIMESTAMP.pack(stamp) + bytes(frame))
         self.records += 1
 
     def flush(self) -> None:
