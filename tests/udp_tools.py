@@ -74,7 +74,7 @@ class DatagramSink:
         """Wait until ``count`` datagrams arrived (bounded); returns whether they did."""
         deadline = time.monotonic() + timeout_s
         while len(self.datagrams) < count and time.monotonic() < deadline:
-            time.sleep(0.01)
+            time.sleep(0.0005)
         return len(self.datagrams) >= count
 
     def close(self) -> None:
