@@ -476,6 +476,7 @@ class SimEmitter:
         started = time.monotonic()
         next_progress = started + self.progress_period_s
         sent_steps = 0
+        sent_time_s = 0.0
         stopped_by: str | None = None
         for step in range(self.steps + 1):
             if step > 0:
@@ -494,6 +495,7 @@ class SimEmitter:
                 break
             self._send(record)
             sent_steps += 1
+            sent_time_s = record.time_s
             if self.progress_period_s > 0.0 and time.monotonic() >= next_progress:
                 self._progress(record, started, sent_steps)
                 next_progress += self.progress_period_s
@@ -507,7 +509,7 @@ class SimEmitter:
         return EmitterStats(
             mode=self.mode,
             steps=sent_steps,
-            sim_time_s=record.time_s if sent_steps else 0.0,
+            sim_time_s=sent_time_s,
             wall_s=wall,
             sent=dict(self.sent),
             received=dict(self.received),

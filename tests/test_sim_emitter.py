@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import math
 import select
+import signal
 import threading
 import time
 from collections import Counter
@@ -268,3 +269,31 @@ def test_lockstep_waits_for_acknowledgements_then_gives_up(
     # exactly W steps beyond the last acknowledged one went out, then the sim waited
     assert len(acker.imu_times_usec) == expected_steps
     assert elapsed < 5.0
+
+
+def test_a_signal_stops_the_run_after_the_current_step():
+    class StopAfterFiveSteps(SimEmitter):
+        def _send(self, record):
+            super()._send(record)
+            if record.step == 4:
+                self.stop_signal = signal.SIGINT
+
+    sink = DatagramSink()
+    connection = connect(f"udpout:127.0.0.1:{sink.port}", 1, 1, input_=False)
+    flight = flight_from_scenario(load_scenario(SCENARIO))
+    try:
+        emitter = StopAfterFiveSteps(
+            flight, connection, steps=300, mode="free-run", progress_period_s=0
+        )
+        summary = emitter.run()
+    finally:
+        connection.close()
+        sink.close()
+    assert summary.stopped_by == "SIGINT" and summary.steps == 5
+    assert summary.sim_time_s == pytest.approx(0.04)
+    assert summary.sent == {
+        "HEARTBEAT": 1,
+        "GPS_RAW_INT": 1,
+        "SERVO_OUTPUT_RAW": 5,
+        "HIGHRES_IMU": 5,
+    }
