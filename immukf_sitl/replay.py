@@ -90,6 +90,7 @@ def summary_of(result: ReplayResult, scenario_name: str) -> dict:
         result.events(),
         result.track(),
         result.step_us(),
+        settle_s=result.pipeline.config.detector.settle_s,
     )
 
 

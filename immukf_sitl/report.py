@@ -12,8 +12,9 @@ Definitions (README "Reading a summary"):
   declaration of the fault's mode;
 - false alarm: a declaration of any mode other than the one the active faults form (any
   declaration when no fault is active);
-- estimation errors over the flight after alignment: position as the NED distance to truth,
-  attitude as the norm of the wrapped roll, pitch and yaw errors.
+- estimation errors over the flight from the end of the settling period after alignment:
+  position as the NED distance to truth, attitude as the norm of the wrapped roll, pitch and
+  yaw errors.
 """
 
 from __future__ import annotations
@@ -66,8 +67,11 @@ def _match_times(t_ref: np.ndarray, t_other: np.ndarray, tol_s: float = 0.006) -
     return np.where(np.abs(t_other[nearer] - t_ref) <= tol_s, nearer, -1)
 
 
-def estimation_errors(truth: Sequence[TruthSample], track: EstimateTrack) -> dict:
-    """Max and mean-square position (m) and attitude (deg) errors against truth."""
+def estimation_errors(
+    truth: Sequence[TruthSample], track: EstimateTrack, from_s: float = 0.0
+) -> dict:
+    """Max and mean-square position (m) and attitude (deg) errors against truth from ``from_s``."""
+    truth = [s for s in truth if s.t_s >= from_s]
     t_truth = np.array([s.t_s for s in truth])
     out = {"pos_max_m": None, "pos_mse_m2": None, "att_max_deg": None, "att_mse_deg2": None}
     if t_truth.size == 0:
@@ -102,14 +106,21 @@ def summarize(
     step_us: dict,
     imu_noise: ImuNoiseSpec | None = None,
     expect: ExpectSpec | None = None,
+    settle_s: float = 0.0,
 ) -> dict:
-    """The JSON-ready summary of one flight (see the module docstring)."""
+    """The JSON-ready summary of one flight (see the module docstring).
+
+    Estimation errors count from ``settle_s`` after the first estimate (the alignment
+    transient is not what the errors are meant to show).
+    """
     imu_noise = imu_noise if imu_noise is not None else ImuNoiseSpec()
     t_truth = np.array([s.t_s for s in truth])
     true_imu = np.array(
         [np.concatenate([s.specific_force_mps2, s.rates_radps]) for s in truth]
     ).reshape(-1, 6)
     detections = [e for e in events if e.kind == "detected"]
+    first_estimate_s = float(track.attitude_t_s[0]) if track.attitude_t_s.size else 0.0
+    errors_from_s = first_estimate_s + settle_s
     fault_rows = []
     for fault in faults:
         observable = fault_observable_time_s(fault, t_truth, true_imu, imu_noise)
@@ -142,7 +153,7 @@ def summarize(
         ],
         "false_alarms": len(false_alarms),
         "false_alarm_detections": [{"mode": e.mode, "t_s": e.t_s} for e in false_alarms],
-        "est_error": estimation_errors(truth, track),
+        "est_error": estimation_errors(truth, track, errors_from_s),
         "step_us": {"median": step_us.get("median"), "p99": step_us.get("p99")},
     }
     if expect is not None:

@@ -31,10 +31,9 @@ from immukf_sitl.scenario import FaultSpec
 
 MG_TO_MPS2 = 9.80665e-3
 FAULT_TEXT = re.compile(
-    r"^FAULT (?P<end>END )?(?P<kind>\w+) (?P<channels>[xyzpqr+]+) t=(?P<t>[\d.]+)"
+    r"^FAULT (?P<end>END )?(?P<kind>\w+) (?P<channels>[xyzpqr+]+) t=(?P<t>[-\d.]+)"
+    r"(?: v=(?P<v>[-+\deE.]+))?"
 )
-
-
 SCENARIO_TEXT = re.compile(r"^SCENARIO (?P<name>\S+)")
 
 
@@ -43,9 +42,17 @@ def scenario_annotation(name: str) -> str:
     return f"SCENARIO {name}"[:50]
 
 
-def fault_annotation(kind: str, channels: Iterable[str], t_s: float, end: bool = False) -> str:
-    """The proxy's STATUSTEXT marking a fault's start or end (at most 50 characters)."""
-    return f"FAULT {'END ' if end else ''}{kind} {'+'.join(channels)} t={t_s:.3f}"
+def fault_annotation(
+    kind: str, channels: Iterable[str], t_s: float, value: float = 0.0, end: bool = False
+) -> str:
+    """The proxy's STATUSTEXT marking a fault's start or end (at most 50 characters).
+
+    ``FAULT zero q t=30.000``, ``FAULT bias x+z t=12.500 v=0.2``, ``FAULT END zero q t=60.000``.
+    """
+    text = f"FAULT {'END ' if end else ''}{kind} {'+'.join(channels)} t={t_s:.3f}"
+    if value and not end:
+        text += f" v={value:.6g}"
+    return text[:50]
 
 
 @dataclass(frozen=True)

@@ -31,6 +31,7 @@ from immukf_sitl.errors import UserError
 from immukf_sitl.estimation.fault_modes import FaultMode
 from immukf_sitl.mavlink import codec
 from immukf_sitl.mavlink.publish import OutputRates, Publisher, heartbeat
+from immukf_sitl.mavlink.tlog import TlogWriter
 from immukf_sitl.mavlink.wire import (
     ESTIMATOR_COMPONENT_ID,
     ESTIMATOR_SYSTEM_ID,
@@ -39,7 +40,6 @@ from immukf_sitl.mavlink.wire import (
     MavMessage,
     connect,
     mavlink,
-    open_tlog_writer,
 )
 from immukf_sitl.models.params import load_aircraft_params
 from immukf_sitl.pipeline import EstimateOutput, EstimatorPipeline, PipelineConfig
@@ -105,7 +105,8 @@ class EstimatorService:
         Ground stations.
     publisher : Publisher
     tlog_path : str, optional
-        Record everything published here.
+        Record everything published here (record time: the IMU time it belongs to).
+
     log : text stream
         Where the stats line goes (stderr).
     stats_interval_s : float
@@ -130,7 +131,8 @@ class EstimatorService:
         self.log = log
         self.stats_interval_s = stats_interval_s
         self._mav = mavlink.MAVLink(None, ESTIMATOR_SYSTEM_ID, ESTIMATOR_COMPONENT_ID)
-        self._tlog = open_tlog_writer(tlog_path) if tlog_path else None
+        self._tlog = TlogWriter(tlog_path) if tlog_path else None
+        self._clock_s = 0.0
         self._last_stats = time.monotonic()
         self._last_wall_heartbeat = 0.0
         self._last_output: EstimateOutput | None = None
@@ -145,6 +147,10 @@ class EstimatorService:
         if kind == "BAD_DATA":
             self.stats.bad_packets += 1
             return
+        stamp_us = getattr(msg, "time_usec", None)
+        if stamp_us is not None and kind != "SERVO_OUTPUT_RAW":  # SERVO's is 32-bit: wraps
+            self._clock_s = stamp_us * 1e-6
+
         if msg.get_srcComponent() == ESTIMATOR_COMPONENT_ID:
             self.stats.ignored += 1  # our own traffic looped back
             return
@@ -155,6 +161,11 @@ class EstimatorService:
                 self.pipeline.on_gps(codec.decode_gps_raw_int(msg))
             elif kind == "SERVO_OUTPUT_RAW":
                 self.pipeline.on_actuators(codec.decode_servo_output_raw(msg))
+            elif kind == "HEARTBEAT":
+                # route the vehicle's heartbeat to the ground stations: QGroundControl creates a
+                # vehicle only from a component-1 heartbeat, then shows our messages beside it
+                for conn in self.outbound:
+                    self._send(conn, bytes(msg.get_msgbuf()))
             else:
                 self.stats.ignored += 1
         except codec.DecodeError:
@@ -193,7 +204,7 @@ class EstimatorService:
             for conn in self.outbound:
                 self._send(conn, buf)
             if self._tlog is not None:
-                self._tlog.write(buf)
+                self._tlog.write(buf, self._clock_s)
 
     # -- the loop --------------------------------------------------------------------------
 
@@ -217,8 +228,8 @@ class EstimatorService:
         self._stop = True
 
     def run(self, idle_exit_s: float = 0.0) -> None:
-        """Serve until :meth:`stop` (or ``idle_exit_s`` without input, when > 0)."""
-        last_input = time.monotonic()
+        """Serve until :meth:`stop`, or until input stops for ``idle_exit_s`` (when > 0)."""
+        last_input: float | None = None  # idle time counts once input has begun
         while not self._stop:
             if self.poll(0.2):
                 last_input = time.monotonic()
@@ -229,7 +240,7 @@ class EstimatorService:
             if self.stats_interval_s and now - self._last_stats >= self.stats_interval_s:
                 self._say(self.stats_line())
                 self._last_stats = now
-            if idle_exit_s > 0 and now - last_input > idle_exit_s:
+            if idle_exit_s > 0 and last_input is not None and now - last_input > idle_exit_s:
                 break
         if self._tlog is not None:
             self._tlog.close()
@@ -418,7 +429,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--idle-exit",
         type=float,
         default=0.0,
-        help="exit after this many seconds without input (default 0: run until interrupted)",
+        help="exit once input has stopped for this many seconds (default 0: run until interrupted)",
     )
     parser.add_argument(
         "--json", action="store_true", help="print one JSON object of statistics at exit"

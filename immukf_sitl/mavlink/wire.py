@@ -14,6 +14,8 @@ os.environ["MAVLINK20"] = "1"
 
 from pymavlink import mavutil  # noqa: E402
 
+from immukf_sitl.errors import UserError  # noqa: E402
+
 DIALECT = "common"
 mavutil.set_dialect(DIALECT)
 mavlink = mavutil.mavlink
@@ -34,7 +36,7 @@ MavConnection = mavutil.mavfile
 MavMessage = mavlink.MAVLink_message
 
 
-class ConnectionError_(OSError):
+class ConnectionError_(UserError):
     """A connection string that cannot be opened (bad syntax, busy port)."""
 
 
