@@ -1,0 +1,217 @@
+"""End to end over real UDP: ``immukf-sitl run`` (sim -> proxy -> serve, lock-step on loopback)
+with a real, headless MAVProxy as the ground station.
+
+The q gyro is zeroed at 30 s (``scenarios/q_gyro_zeroed.yaml``, cut to 36 s). The run's JSON must
+report q identified within 1.0 s of the fault becoming observable and no false alarm; MAVProxy's
+own tlog must hold, from the estimator (system 1, component 191), the seven mode probabilities,
+ATTITUDE and the detection STATUSTEXT. MAVProxy is started before the run, stopped with SIGINT
+(a SIGTERM once left a 0-byte tlog) and killed if it lingers; every wait is bounded.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from collections import Counter
+from pathlib import Path
+
+import pytest
+from udp_tools import REPO, free_udp_port
+
+from immukf_sitl.mavlink.wire import (
+    ESTIMATOR_COMPONENT_ID,
+    ESTIMATOR_SYSTEM_ID,
+    open_tlog_reader,
+)
+
+SCENARIO = REPO / "scenarios" / "q_gyro_zeroed.yaml"
+DURATION_S = 36.0
+FAULT_T_S = 30.0
+MP_NAMES = {"MP_NONE", "MP_AX", "MP_AY", "MP_AZ", "MP_P", "MP_Q", "MP_R"}
+RUN_TIMEOUT_S = 75.0  # about 18 s here; bounded so a hung chain fails instead of blocking CI
+MAVPROXY_READY_S = 20.0
+STOP_TIMEOUT_S = 10.0
+
+
+def _mavproxy_command() -> list[str] | None:
+    """``mavproxy.py`` beside this interpreter (the venv's bin/), else the one on PATH."""
+    beside = Path(sys.executable).parent / "mavproxy.py"
+    if beside.is_file():
+        return [sys.executable, str(beside)]
+    found = shutil.which("mavproxy.py")
+    return [found] if found else None
+
+
+def _stop(proc: subprocess.Popen, timeout_s: float = STOP_TIMEOUT_S) -> bool:
+    """SIGINT the child's process group, then SIGKILL it if it lingers; True if SIGINT did."""
+    graceful = True
+    if proc.poll() is None:
+        os.killpg(proc.pid, signal.SIGINT)
+        try:
+            proc.wait(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            graceful = False
+    _kill(proc)
+    return graceful
+
+
+def _kill(proc: subprocess.Popen) -> None:
+    """SIGKILL the child's own process group (its session: it and its children only)."""
+    try:
+        os.killpg(proc.pid, signal.SIGKILL)
+    except ProcessLookupError:
+        pass
+    try:
+        proc.wait(timeout=STOP_TIMEOUT_S)
+    except subprocess.TimeoutExpired:  # pragma: no cover - a zombie that will not be reaped
+        pass
+
+
+def _read_gcs_tlog(path: Path) -> list:
+    """Every message MAVProxy recorded, in order."""
+    log = open_tlog_reader(str(path))
+    msgs = []
+    try:
+        while (msg := log.recv_match()) is not None:
+            if msg.get_type() != "BAD_DATA":
+                msgs.append(msg)
+    finally:
+        log.close()
+    return msgs
+
+
+def test_run_with_mavproxy_ground_station(tmp_path: Path) -> None:
+    mavproxy_cmd = _mavproxy_command()
+    if mavproxy_cmd is None:
+        pytest.skip(
+            f"mavproxy.py not found beside {sys.executable} or on PATH "
+            "(install the dev extras: pip install -e '.[dev]')"
+        )
+    gcs_dir = tmp_path / "gcs"
+    gcs_dir.mkdir()
+    run_dir = tmp_path / "run"
+    gcs_tlog = gcs_dir / "gcs.tlog"
+    gcs_out = gcs_dir / "mavproxy.out"
+    port = free_udp_port()
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+
+    mavproxy = run = None
+    started = time.monotonic()
+    try:
+        with open(gcs_out, "wb") as out:
+            mavproxy = subprocess.Popen(
+                [
+                    *mavproxy_cmd,
+                    f"--master=udpin:127.0.0.1:{port}",
+                    "--daemon",
+                    "--non-interactive",
+                    f"--state-basedir={gcs_dir}",
+                    f"--logfile={gcs_tlog}",
+                    "--default-modules=log",
+                    "--cmd=set flushlogs True",
+                ],
+                cwd=gcs_dir,
+                stdin=subprocess.DEVNULL,
+                stdout=out,
+                stderr=subprocess.STDOUT,
+                env=env,
+                start_new_session=True,
+            )
+        # Ready when it listens: it prints this after binding the master port.
+        deadline = time.monotonic() + MAVPROXY_READY_S
+        while b"Waiting for heartbeat" not in gcs_out.read_bytes():
+            assert mavproxy.poll() is None, f"MAVProxy exited: {gcs_out.read_text()[-2000:]}"
+            assert time.monotonic() < deadline, f"MAVProxy not ready: {gcs_out.read_text()}"
+            time.sleep(0.1)
+        ready_s = time.monotonic() - started
+
+        run = subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "immukf_sitl.cli",
+                "run",
+                str(SCENARIO),
+                "--duration",
+                f"{DURATION_S:g}",
+                "--gcs",
+                f"udpout:127.0.0.1:{port}",
+                "--json",
+                "--out",
+                str(run_dir),
+            ],  # fmt: skip
+            cwd=REPO,
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            env=env,
+            start_new_session=True,  # its sim, proxy and serve share its process group
+        )
+        try:
+            stdout, stderr = run.communicate(timeout=RUN_TIMEOUT_S)
+        except subprocess.TimeoutExpired:
+            _kill(run)
+            pytest.fail(f"immukf-sitl run did not finish within {RUN_TIMEOUT_S:g} s")
+        run_s = time.monotonic() - started - ready_s
+        assert run.returncode == 0, f"run failed ({run.returncode}): {stderr[-3000:]}"
+        assert mavproxy.poll() is None, f"MAVProxy died: {gcs_out.read_text()[-2000:]}"
+        stopped_by_sigint = _stop(mavproxy)
+    finally:
+        for proc in (run, mavproxy):
+            if proc is not None:
+                _kill(proc)
+    print(
+        f"e2e: MAVProxy ready {ready_s:.1f} s, run {run_s:.1f} s, "
+        f"MAVProxy {'stopped by SIGINT' if stopped_by_sigint else 'killed'}"
+    )
+
+    # The run's own verdict.
+    summary = json.loads(stdout.strip().splitlines()[-1])
+    assert summary["received_truth_messages"] == 0
+    assert summary["false_alarms"] == 0, summary["false_alarm_detections"]
+    assert all(d["t_s"] >= FAULT_T_S for d in summary["detections"]), summary["detections"]
+    (fault,) = summary["faults"]
+    assert fault["channels"] == ["q"]
+    assert fault["observable_t_s"] is not None and fault["observable_t_s"] >= FAULT_T_S
+    assert fault["mode"] == "q" and fault["detected_t_s"] is not None, fault
+    assert 0.0 <= fault["detected_t_s"] - fault["observable_t_s"] <= 1.0, fault
+    q_detections = [d for d in summary["detections"] if d["mode"] == "q"]
+    assert q_detections and q_detections[0]["t_s"] <= fault["observable_t_s"] + 1.0
+
+    # What the ground station recorded.
+    assert gcs_tlog.is_file() and gcs_tlog.stat().st_size > 0, gcs_out.read_text()[-2000:]
+    msgs = _read_gcs_tlog(gcs_tlog)
+    by_source = Counter((m.get_srcSystem(), m.get_srcComponent(), m.get_type()) for m in msgs)
+    print("e2e: MAVProxy recorded", dict(sorted(by_source.items())))
+    # The truth stays in the recorder: nothing of it reaches the ground station either.
+    assert not any(kind == "HIL_STATE_QUATERNION" for _, _, kind in by_source), by_source
+    ours = [
+        m
+        for m in msgs
+        if (m.get_srcSystem(), m.get_srcComponent())
+        == (ESTIMATOR_SYSTEM_ID, ESTIMATOR_COMPONENT_ID)
+    ]
+    kinds = Counter(m.get_type() for m in ours)
+    assert kinds["ATTITUDE"] > 0, kinds
+    assert kinds["HEARTBEAT"] > 0, kinds
+
+    probs = [m for m in ours if m.get_type() == "NAMED_VALUE_FLOAT" and m.name in MP_NAMES]
+    assert {m.name for m in probs} == MP_NAMES
+    mp_q = [(m.time_boot_ms / 1000.0, m.value) for m in probs if m.name == "MP_Q"]
+    before = [p for t, p in mp_q if t < FAULT_T_S]
+    last_t = max(t for t, _ in mp_q)
+    last_second = [p for t, p in mp_q if t >= last_t - 1.0]
+    assert before and max(before) < 0.5, max(before, default=None)
+    assert last_t >= DURATION_S - 1.0, last_t
+    assert last_second and min(last_second) > 0.9, min(last_second, default=None)
+
+    texts = [m.text for m in ours if m.get_type() == "STATUSTEXT"]
+    assert any(t.startswith("IMM: q gyro fault detected, p=") for t in texts), texts
+    # and MAVProxy showed it to its user as a vehicle message
+    assert "AP: IMM: q gyro fault detected, p=" in gcs_out.read_text(), gcs_out.read_text()
