@@ -22,7 +22,7 @@ class DetectorConfig:
     """Decision thresholds (defaults documented in README "Detection")."""
 
     threshold: float = 0.9
-    dwell_s: float = 0.1
+    dwell_s: float = 0.2
     clear_threshold: float = 0.5
     clear_dwell_s: float = 5.0
     settle_s: float = 3.0

@@ -61,8 +61,8 @@ def _match_times(t_ref: np.ndarray, t_other: np.ndarray, tol_s: float = 0.006) -
     """Index into ``t_other`` of the sample nearest each ``t_ref`` (-1 if none within tol)."""
     if t_other.size == 0:
         return np.full(t_ref.shape, -1)
-    idx = np.clip(np.searchsorted(t_other, t_ref), 1, max(t_other.size - 1, 1))
-    left = idx - 1
+    idx = np.clip(np.searchsorted(t_other, t_ref), 0, t_other.size - 1)
+    left = np.maximum(idx - 1, 0)
     nearer = np.where(np.abs(t_other[left] - t_ref) <= np.abs(t_other[idx] - t_ref), left, idx)
     return np.where(np.abs(t_other[nearer] - t_ref) <= tol_s, nearer, -1)
 

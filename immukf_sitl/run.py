@@ -370,7 +370,8 @@ def _main(args: argparse.Namespace) -> int:
     if args.truth_hz is not None and not 0.0 < args.truth_hz <= 100.0:
         raise UserError(f"--truth-hz: expected a rate in (0, 100], got {args.truth_hz}")
     out_dir = Path(args.out) if args.out else Path("out") / scenario.name
-    print(f"run: {scenario.name} ({scenario.duration_s:g} s) -> {out_dir}", file=sys.stderr)
+    duration_s = args.duration or scenario.duration_s
+    print(f"run: {scenario.name} ({duration_s:g} s) -> {out_dir}", file=sys.stderr)
     summary = run_scenario(scenario, args.scenario, out_dir, args)
     print(human_summary(summary), file=sys.stderr)
     print(f"run: wrote {out_dir}/ (flight.tlog, estimator.tlog, summary.png)", file=sys.stderr)

@@ -16,7 +16,6 @@ frame. The project writes two kinds:
 from __future__ import annotations
 
 import re
-import struct
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -213,17 +212,6 @@ def read_estimator_log(path: str | Path) -> EstimatorLog:
         events,
         texts,
     )
-
-
-def write_tlog(path: str | Path, records: Iterable[tuple[float, bytes]]) -> int:
-    """Write ``(time_s, frame)`` records (timestamps as given, in microseconds); returns bytes."""
-    size = 0
-    with open(path, "wb") as fh:
-        for t_s, frame in records:
-            chunk = struct.pack(">Q", max(0, int(round(t_s * 1e6)))) + frame
-            fh.write(chunk)
-            size += len(chunk)
-    return size
 
 
 def read_records(path: str | Path) -> list[tuple[float, bytes]]:

@@ -268,7 +268,9 @@ class FaultProxy:
             return
         for i in sorted(active - self._active):
             fault = self.injector.faults[i]
-            self._annotate(fault_annotation(fault.kind, fault.channels, fault.t_s), time_s)
+            self._annotate(
+                fault_annotation(fault.kind, fault.channels, fault.t_s, fault.value), time_s
+            )
         for i in sorted(self._active - active):
             fault = self.injector.faults[i]
             end_s = fault.end_t_s if fault.end_t_s is not None else time_s

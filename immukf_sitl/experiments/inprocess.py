@@ -1,0 +1,111 @@
+"""The sim -> fault proxy -> estimator chain in one process, without sockets.
+
+The same objects the three UDP processes wrap (DESIGN.md section 1): the JSBSim
+:class:`~sim.flight.Flight`, the proxy's :class:`~sim.fault_proxy.FaultInjector` and the
+:class:`~immukf_sitl.pipeline.EstimatorPipeline`, stepped together. Experiments and tuning
+studies use it; the summary is the one ``run`` and ``replay`` print.
+
+The stream differs from the wire only by what the wire quantises: the estimator here gets the
+sensor values at full precision (HIGHRES_IMU carries float32, GPS_RAW_INT integers) and the
+controls through the same PWM map.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from immukf_sitl.models.params import load_aircraft_params
+from immukf_sitl.pipeline import EstimateOutput, EstimatorPipeline, PipelineConfig
+from immukf_sitl.report import EstimateTrack, EventRecord, summarize
+from immukf_sitl.samples import ActuatorSample
+from immukf_sitl.scenario import Scenario
+from immukf_sitl.tlog import TruthSample
+from sim.driver import TruthState
+from sim.fault_proxy import FaultInjector
+from sim.scenario_flight import flight_from_scenario
+
+
+def truth_sample(truth: TruthState) -> TruthSample:
+    """The sim's truth as the record a flight tlog holds."""
+    return TruthSample(
+        truth.time_s,
+        truth.lat_deg,
+        truth.lon_deg,
+        truth.alt_m,
+        np.asarray(truth.euler_rad),
+        np.asarray(truth.rates_body_radps),
+        np.asarray(truth.velocity_ned_mps),
+        np.asarray(truth.specific_force_body_mps2),
+    )
+
+
+@dataclass
+class InProcessRun:
+    """Outputs of the estimator and the truth of one in-process flight."""
+
+    scenario: Scenario
+    outputs: list[EstimateOutput]
+    truth: list[TruthSample]
+    pipeline: EstimatorPipeline
+
+    def summary(self) -> dict:
+        """The run/replay summary."""
+        t = np.array([o.t_s for o in self.outputs])
+        track = EstimateTrack(
+            t,
+            np.array([o.nav.euler_rad for o in self.outputs]).reshape(-1, 3),
+            t,
+            np.array([(o.lat_deg, o.lon_deg, o.alt_m) for o in self.outputs]).reshape(-1, 3),
+        )
+        events = [
+            EventRecord(e.kind, e.mode.name, e.t_s, e.probability)
+            for o in self.outputs
+            for e in o.events
+        ]
+        steps = np.array([o.step_us for o in self.outputs])
+        step_us = {
+            "median": float(np.median(steps)) if steps.size else None,
+            "p99": float(np.percentile(steps, 99)) if steps.size else None,
+        }
+        return summarize(
+            self.scenario.name,
+            self.scenario.faults,
+            self.truth,
+            events,
+            track,
+            step_us,
+            self.scenario.sensors.imu,
+            self.scenario.expect,
+            settle_s=self.pipeline.config.detector.settle_s,
+        )
+
+
+def run_inprocess(
+    scenario: Scenario,
+    config: PipelineConfig | None = None,
+    duration_s: float | None = None,
+) -> InProcessRun:
+    """Fly ``scenario`` through the fault injector into the estimator, in one process."""
+    params = load_aircraft_params()
+    pipeline = EstimatorPipeline(params, config)
+    flight = flight_from_scenario(scenario, params)
+    injector = FaultInjector.from_scenario(scenario)
+    steps = int(round((duration_s or scenario.duration_s) / flight.driver.dt_s))
+    outputs: list[EstimateOutput] = []
+    truth: list[TruthSample] = []
+    record = flight.start()
+    for k in range(steps + 1):
+        if k:
+            record = flight.step()
+        t = record.time_s
+        pwm = params.actuators.controls_to_pwm(record.controls)
+        pipeline.on_actuators(ActuatorSample(t, tuple(pwm.get(c, 0) for c in range(1, 17))))
+        if record.gps is not None:
+            pipeline.on_gps(record.gps)
+        out = pipeline.on_imu(injector.apply(record.imu))
+        truth.append(truth_sample(record.truth))
+        if out is not None:
+            outputs.append(out)
+    return InProcessRun(scenario, outputs, truth, pipeline)

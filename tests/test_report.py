@@ -1,0 +1,86 @@
+"""The summary's definitions: delays from observability, false alarms, errors, expectations."""
+
+import numpy as np
+import pytest
+
+from immukf_sitl.report import EstimateTrack, EventRecord, estimation_errors, summarize
+from immukf_sitl.scenario import ExpectSpec, FaultSpec
+from immukf_sitl.tlog import TruthSample
+
+DT = 0.01
+
+
+def _truth(n, q_of_t=lambda t: 0.0):
+    out = []
+    for k in range(n):
+        t = k * DT
+        out.append(
+            TruthSample(t, 47.0, 8.0, 150.0, np.array([0.1, 0.05, 1.0]),
+                        np.array([0.0, q_of_t(t), 0.0]), np.array([25.0, 0.0, 0.0]),
+                        np.array([0.5, 0.0, -9.8]))
+        )  # fmt: skip
+    return out
+
+
+def _track(truth, euler_offset=(0.0, 0.0, 0.0), north_offset_m=0.0):
+    t = np.array([s.t_s for s in truth])
+    euler = np.array([s.euler_rad for s in truth]) + np.array(euler_offset)
+    lla = np.array([(s.lat_deg + north_offset_m / 111_000.0, s.lon_deg, s.alt_m) for s in truth])
+    return EstimateTrack(t, euler, t, lla)
+
+
+def test_delay_counts_from_when_the_fault_became_observable():
+    # q is 0 until 2.0 s, then 0.05 rad/s (22 sigma): a zeroed q gyro is observable from 2.0 s
+    truth = _truth(400, lambda t: 0.05 if t >= 2.0 else 0.0)
+    fault = FaultSpec(1.0, ("q",), "zero")
+    events = [EventRecord("detected", "q", 2.3, 0.97)]
+    s = summarize("t", [fault], truth, events, _track(truth), {"median": 500.0, "p99": 900.0},
+                  expect=ExpectSpec("q", 1.0))  # fmt: skip
+    (row,) = s["faults"]
+    assert row["observable_t_s"] == pytest.approx(2.0)
+    assert row["detection_delay_s"] == pytest.approx(0.3)
+    assert s["false_alarms"] == 0 and s["expectation"]["met"]
+    assert s["step_us"] == {"median": 500.0, "p99": 900.0}
+
+
+def test_wrong_mode_or_early_detection_is_a_false_alarm():
+    truth = _truth(400, lambda t: 0.05)
+    fault = FaultSpec(2.0, ("q",), "zero")
+    events = [
+        EventRecord("detected", "p", 1.0, 0.95),  # before any fault
+        EventRecord("detected", "r", 2.5, 0.95),  # wrong channel
+        EventRecord("detected", "q", 2.6, 0.99),
+    ]
+    s = summarize("t", [fault], truth, events, _track(truth), {}, expect=ExpectSpec("q", 1.0))
+    assert s["false_alarms"] == 2
+    assert [d["mode"] for d in s["false_alarm_detections"]] == ["p", "r"]
+    assert s["faults"][0]["detection_delay_s"] == pytest.approx(0.6)
+    assert not s["expectation"]["met"]
+
+
+def test_unobservable_fault_has_no_observable_time_and_no_delay():
+    truth = _truth(300)  # q stays 0: a zeroed q gyro reads what a healthy one would
+    s = summarize("t", [FaultSpec(1.0, ("q",), "zero")], truth, [], _track(truth), {})
+    assert s["faults"][0]["observable_t_s"] is None
+    assert s["faults"][0]["detection_delay_s"] is None
+
+
+def test_errors_against_known_offsets():
+    truth = _truth(100)
+    err = estimation_errors(truth, _track(truth, euler_offset=(np.radians(3), 0, np.radians(4)),
+                                          north_offset_m=2.0))  # fmt: skip
+    assert err["att_max_deg"] == pytest.approx(5.0, rel=1e-9)
+    assert err["att_mse_deg2"] == pytest.approx(25.0, rel=1e-9)
+    assert err["pos_max_m"] == pytest.approx(2.0 * 111_000.0 / 111_195.0, rel=2e-2)
+
+
+def test_a_single_truth_sample_is_enough():
+    truth = _truth(1)
+    err = estimation_errors(truth, _track(truth))
+    assert err["att_max_deg"] == pytest.approx(0.0, abs=1e-12)
+
+
+def test_yaw_error_wraps_across_pi():
+    truth = _truth(10)
+    track = _track(truth, euler_offset=(0.0, 0.0, 2 * np.pi - np.radians(1.0)))
+    assert estimation_errors(truth, track)["att_max_deg"] == pytest.approx(1.0, rel=1e-9)
