@@ -118,6 +118,27 @@ class EstimatorPipeline:
         self._last_imu_s: float | None = None
         self._restart_at_s: float | None = None
 
+    def warm_up(self) -> None:
+        """Build and step the configured filter once on a trimmed state, then forget it.
+
+        The first step compiles the model's numba kernels (seconds on a cold cache); a service
+        does it before it reports ready, so that its first real sample is not late.
+        """
+        from immukf_sitl.models.aero import AeroModel
+        from immukf_sitl.variants import align
+
+        origin = NedOrigin(0.0, 0.0, 100.0)
+        x0, u0 = AeroModel(self.params, origin).trim(25.0)
+        cfg = self.config
+        estimator = build_estimator(
+            cfg.variant, self.params, origin, cfg.true_mode, cfg.noise, cfg.tuning
+        )
+        imu = np.array([0.5, 0.0, -9.8, 0.0, 0.0, 0.0])
+        gps = np.array([0.0, 0.0, 0.0, float(x0[3]), 0.0])
+        estimator.initialize_from(align(0.0, imu, gps), imu if cfg.variant == "ukf3" else u0)
+        estimator.step(IMU_PERIOD_S, u0, imu, gps)
+        estimator.step(2 * IMU_PERIOD_S, u0, imu, None)
+
     @property
     def aligned(self) -> bool:
         """Whether the filter is running."""

@@ -39,6 +39,11 @@ from immukf_sitl.report import (
 from immukf_sitl.scenario import Scenario, load_scenario
 from immukf_sitl.tlog import read_estimator_log, read_flight_log, read_records
 
+#: How long serve (which compiles its kernels first) and proxy may take to bind their ports.
+READY_TIMEOUT_S = 120.0
+#: The sim's lock-step patience: generous, since run watches its children itself.
+ACK_TIMEOUT_S = 60.0
+
 FILTER_OPTIONS = (
     "variant",
     "true_mode",
@@ -73,6 +78,17 @@ class Child:
             if self.echo:
                 print(f"  [{self.name}] {line}", file=sys.stderr, flush=True)
 
+    def wait_ready(self, prefix: str, timeout_s: float) -> None:
+        """Block until the child prints a line starting with ``prefix`` (its ports are bound)."""
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            if any(line.startswith(prefix) for line in list(self.lines)):
+                return
+            if self.proc.poll() is not None:
+                raise UserError(f"{self.name} failed to start: {self.last_error()}")
+            time.sleep(0.02)
+        raise UserError(f"{self.name} did not report ready within {timeout_s:.0f} s")
+
     def stop(self, timeout_s: float = 15.0) -> str:
         """SIGINT, wait, kill if needed; returns stdout."""
         if self.proc.poll() is None:
@@ -104,7 +120,8 @@ def _free_ports(n: int) -> list[int]:
     return ports
 
 
-def _spawn(name: str, argv: list[str], echo: bool) -> Child:
+def spawn_cli(name: str, argv: list[str], echo: bool = False) -> Child:
+    """Start ``immukf-sitl ARGV`` with this interpreter; stderr collected by a thread."""
     cmd = [sys.executable, "-m", "immukf_sitl.cli", *argv]
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     proc = subprocess.Popen(
@@ -211,7 +228,7 @@ def run_scenario(
     for gcs in args.gcs or []:
         serve_argv += ["--out", gcs]
     sim_argv = ["sim", scenario_path, "--out", f"udpout:127.0.0.1:{p_proxy}",
-                "--tlog", str(sim_tlog), "--json"]  # fmt: skip
+                "--tlog", str(sim_tlog), "--json", "--ack-timeout", str(ACK_TIMEOUT_S)]  # fmt: skip
     if args.realtime:
         sim_argv += ["--realtime"] + (["--speed", str(args.speed)] if args.speed else [])
     if args.duration:
@@ -222,17 +239,15 @@ def run_scenario(
     children: list[Child] = []
     started = time.monotonic()
     try:
-        serve = _spawn("serve", serve_argv, echo)
+        serve = spawn_cli("serve", serve_argv, echo)
         children.append(serve)
-        proxy = _spawn("proxy", ["proxy", scenario_path, "--in", f"udpin:127.0.0.1:{p_proxy}",
+        proxy = spawn_cli("proxy", ["proxy", scenario_path, "--in", f"udpin:127.0.0.1:{p_proxy}",
                                  "--out", f"udpout:127.0.0.1:{p_est}", "--tlog",
                                  str(proxy_tlog), "--json"], echo)  # fmt: skip
         children.append(proxy)
-        time.sleep(0.5)  # both bind their ports before the sim's first frame
-        for child in (serve, proxy):
-            if child.proc.poll() is not None:
-                raise UserError(f"{child.name} failed to start: {child.last_error()}")
-        sim = _spawn("sim", sim_argv, echo)
+        for child, ready in ((serve, "serve: ready"), (proxy, "proxy:")):
+            child.wait_ready(ready, READY_TIMEOUT_S)
+        sim = spawn_cli("sim", sim_argv, echo)
         children.append(sim)
         last_report = 0.0
         while sim.proc.poll() is None:

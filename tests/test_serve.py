@@ -2,17 +2,16 @@
 
 import json
 import math
-import subprocess
-import sys
 import time
 
 import numpy as np
 import pytest
-from udp_helpers import free_udp_ports, stop
+from udp_helpers import free_udp_ports
 
 from immukf_sitl.mavlink import codec
 from immukf_sitl.mavlink.wire import connect, mavlink
 from immukf_sitl.models.params import load_aircraft_params
+from immukf_sitl.run import spawn_cli
 from immukf_sitl.samples import ActuatorSample, GpsSample, ImuSample
 from sim.flight import fly
 from sim.flight_plans import default_flight_plan
@@ -33,19 +32,19 @@ def _drain(conn, into):
 def served():
     """Fly 8 s of JSBSim into a serve process lock-step, z accel zeroed at 5 s, plus junk."""
     p_in, p_gcs = free_udp_ports(2)
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "immukf_sitl.cli", "serve", "--in", f"udpin:127.0.0.1:{p_in}",
-         "--out", f"udpout:127.0.0.1:{p_gcs}", "--settle", "1.0", "--idle-exit", "1.5",
-         "--json", "--stats-interval", "0"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-    )  # fmt: skip
     gcs = connect(f"udpin:127.0.0.1:{p_gcs}", 255, 190)
+    child = spawn_cli(
+        "serve",
+        ["serve", "--in", f"udpin:127.0.0.1:{p_in}", "--out", f"udpout:127.0.0.1:{p_gcs}",
+         "--settle", "1.0", "--idle-exit", "1.5", "--json", "--stats-interval", "0"],
+    )  # fmt: skip
+    proc = child.proc
     sim = connect(f"udpout:127.0.0.1:{p_in}", 1, 1)
     params = load_aircraft_params()
     rng = np.random.default_rng(4)
     received, acks = [], []
     try:
-        time.sleep(1.0)  # the service binds its port
+        child.wait_ready("serve: ready", 120.0)  # bound, kernels compiled
         deadline = time.monotonic() + 120
         for rec in fly(default_flight_plan(), seed=11, duration_s=DURATION_S):
             t = rec.time_s
@@ -79,7 +78,8 @@ def served():
         time.sleep(0.5)
         _drain(gcs, received)
         _drain(sim, acks)
-        out, err = stop(proc, timeout_s=20)
+        out = child.stop(timeout_s=20)
+        err = "\n".join(child.lines)
     finally:
         if proc.poll() is None:
             proc.kill()

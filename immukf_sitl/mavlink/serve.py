@@ -462,9 +462,11 @@ def _main(args: argparse.Namespace) -> int:
     )
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: service.stop())
+    pipeline.warm_up()
     print(
-        f"serve: {args.variant} on {args.inbound} -> {', '.join(args.out or [DEFAULT_OUT])}",
+        f"serve: ready: {args.variant} on {args.inbound} -> {', '.join(args.out or [DEFAULT_OUT])}",
         file=sys.stderr,
+        flush=True,
     )
     service.run(idle_exit_s=args.idle_exit)
     print(service.stats_line(), file=sys.stderr)
