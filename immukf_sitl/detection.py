@@ -77,6 +77,8 @@ class FaultDetector:
         """Feed the probabilities at ``t_s``; returns the events this sample caused."""
         cfg = self.config
         events: list[DetectionEvent] = []
+        if len(self.modes) < 2:  # a single filter (UKF-1/2/3) has nothing to decide between
+            return events
         for j, mode in enumerate(self.modes):
             if mode.bits == 0:
                 continue

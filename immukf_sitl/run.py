@@ -106,7 +106,8 @@ class Child:
         return self.lines[-1] if self.lines else "(no output)"
 
 
-def _free_ports(n: int) -> list[int]:
+def free_udp_ports(n: int) -> list[int]:
+    """``n`` distinct loopback UDP ports that were free a moment ago."""
     import socket
 
     socks = []
@@ -218,7 +219,7 @@ def run_scenario(
 ) -> dict:
     """Run the three processes, merge the logs and summarise (see the module docstring)."""
     out_dir.mkdir(parents=True, exist_ok=True)
-    p_proxy, p_est, p_run = _free_ports(3)
+    p_proxy, p_est, p_run = free_udp_ports(3)
     sim_tlog, proxy_tlog = out_dir / "sim.tlog", out_dir / "proxy.tlog"
     flight_tlog, est_tlog = out_dir / "flight.tlog", out_dir / "estimator.tlog"
     echo = args.verbose

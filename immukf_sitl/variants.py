@@ -266,7 +266,9 @@ class AircraftEstimator:
         (section 2.A); the service runs the bank through a settling period and then calls this.
         """
         est = self._require()
-        healthy = next(j for j, m in enumerate(self.modes) if m.bits == 0)
+        healthy = next((j for j, m in enumerate(self.modes) if m.bits == 0), None)
+        if healthy is None or len(self.modes) == 1:  # UKF-1/UKF-2: nothing to re-seed
+            return est
         restarted = self.imm.initial_estimate(
             est.t_s, est.mode_means[healthy], est.mode_covs[healthy], self.prior_probabilities()
         )

@@ -62,3 +62,8 @@ def test_switching_directly_to_another_fault_clears_the_first():
 def test_bad_thresholds_are_rejected():
     with pytest.raises(ValueError, match="clear_threshold <= threshold"):
         DetectorConfig(threshold=0.5, clear_threshold=0.8)
+
+
+def test_a_single_mode_bank_declares_nothing():
+    det = FaultDetector(MODES[5:6], DetectorConfig(dwell_s=0.0, settle_s=0.0), 0.0)
+    assert det.update(0.0, np.array([1.0])) == [] and det.update(1.0, np.array([1.0])) == []
