@@ -30,7 +30,7 @@ from immukf_sitl.estimation import (
     fault_masked_output,
     single_fault_modes,
 )
-from immukf_sitl.estimation.ukf import NoiseForm
+from immukf_sitl.estimation.ukf import Backend, NoiseForm
 from immukf_sitl.models.aero import AeroModel
 from immukf_sitl.models.earth import NedOrigin
 from immukf_sitl.models.ins import InsModel
@@ -355,8 +355,13 @@ def build_aero_estimator(
     tuning: FilterTuning | None = None,
     noise_form: NoiseForm = "augmented",
     kappa: float = 0.0,
+    backend: Backend = "auto",
 ) -> AircraftEstimator:
-    """UKF-1 (``"ukf1"``, needs ``true_mode``), UKF-2 (``"ukf2"``) or UKF-4 (``"imm"``)."""
+    """UKF-1 (``"ukf1"``, needs ``true_mode``), UKF-2 (``"ukf2"``) or UKF-4 (``"imm"``).
+
+    ``backend`` selects the filter's implementation (numpy reference or compiled kernels, see
+    :class:`UnscentedKalmanFilter`); the model's is chosen when ``model`` is built.
+    """
     noise = noise if noise is not None else SensorNoise()
     tuning = tuning if tuning is not None else FilterTuning()
     if variant == "imm":
@@ -370,7 +375,7 @@ def build_aero_estimator(
     else:
         raise ValueError(f"not an aerodynamic-model variant: {variant!r}")
     process = aero_process_model(model, noise, tuning)
-    ukf = UnscentedKalmanFilter(process, JulierSigmaPoints(kappa), noise_form)
+    ukf = UnscentedKalmanFilter(process, JulierSigmaPoints(kappa), noise_form, backend)
     transition = tuning.transition(modes)
     floor = tuning.probability_floor if len(modes) > 1 else 0.0
     imm = ImmEstimator(ukf, transition, floor)

@@ -4,9 +4,10 @@
 ``immukf_sitl.bench.make_flight`` (seed 1: control doublets from trim, default sensor noise, GPS
 fixes at steps 100 and 200), in both noise forms: at every fifth step (the GPS steps among
 them) the combined mean and covariance diagonal, the mode probabilities, every mode's
-log-likelihood and NIS; the final mode-matched estimates; the safeguard counters. Every backend
-must reproduce it to 1e-9 relative (compiled kernels reorder floating-point sums, so bitwise
-equality is not asked for), and the counters exactly.
+log-likelihood and NIS; the final mode-matched estimates; the safeguard counters. Both backends
+(model and filter in numpy, or both compiled) must reproduce it to 1e-9 relative (compiled
+kernels reorder floating-point sums, so bitwise equality is not asked for), and the counters
+exactly.
 
 Regenerate (only when a change of results is intended) with
 ``python tests/test_imm_regression.py``.
@@ -43,7 +44,8 @@ def run_bank(form: str, backend: str) -> dict[str, np.ndarray]:
     params = load_aircraft_params()
     data = make_flight(AeroModel(params, ORIGIN, backend="numpy"), N_STEPS, seed=1)
     model = AeroModel(params, ORIGIN, backend=backend)
-    est = build_aero_estimator("imm", model, noise_form=form)
+    est = build_aero_estimator("imm", model, noise_form=form, backend=backend)
+    assert est.imm.ukf.backend == backend
     est.initialize(0.0, data.x0, initial_cov(), data.controls[0])
     rows: dict[str, list[np.ndarray]] = {
         "mean": [], "cov_diag": [], "mode_probabilities": [], "log_likelihoods": [], "nis": []

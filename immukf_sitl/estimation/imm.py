@@ -1,7 +1,9 @@
 """The Interacting Multiple Model estimator over a bank of mode-matched UKFs.
 
 Mixing (eqs. 6-8), mode-matched filtering (eqs. 9-25, one batched UKF step for the whole bank),
-mode probabilities (eq. 26) in log space, and the combined estimate (eqs. 27-28).
+mode probabilities (eq. 26) in log space, and the combined estimate (eqs. 27-28). Mixing and
+combination run in the UKF's backend: numpy (the reference, below) or the compiled kernels of
+:mod:`immukf_sitl.estimation._kernels_numba`.
 
 Convention (eq. 3), checked on construction: ``transition[i, j] = P(M(k+1) = j | M(k) = i)``;
 every row sums to one.
@@ -137,6 +139,8 @@ class ImmEstimator:
             self.log_transition = np.log(transition)
         self.probability_floor = float(probability_floor)
         self.angle_idx = ukf.process.angle_idx
+        self._kernels = ukf._kernels
+        self._angle_mask = ukf._x_angle
 
     @property
     def n_modes(self) -> int:
@@ -189,11 +193,14 @@ class ImmEstimator:
     ) -> ImmEstimate:
         """One IMM cycle from ``previous`` (time k) to ``k+1`` with control ``u``."""
         log_mu = previous.log_mode_probabilities
-        # eq. (6): c_j = sum_i p_ij mu_i and mu_{i|j} = p_ij mu_i / c_j, in log space
-        log_joint = self.log_transition + log_mu[:, None]
-        log_c = logsumexp(log_joint, axis=0)
-        mixing = np.exp(log_joint - log_c[None, :])  # [i, j] = mu_{i|j}
-        mixed_mean, mixed_cov = self._mix(previous.mode_means, previous.mode_covs, mixing)
+        if self._kernels is not None:
+            log_c, mixed_mean, mixed_cov = self._mix_compiled(previous)
+        else:
+            # eq. (6): c_j = sum_i p_ij mu_i and mu_{i|j} = p_ij mu_i / c_j, in log space
+            log_joint = self.log_transition + log_mu[:, None]
+            log_c = logsumexp(log_joint, axis=0)
+            mixing = np.exp(log_joint - log_c[None, :])  # [i, j] = mu_{i|j}
+            mixed_mean, mixed_cov = self._mix(previous.mode_means, previous.mode_covs, mixing)
 
         filtered = self.ukf.step(t_s, mixed_mean, mixed_cov, u, measurement)
 
@@ -211,7 +218,10 @@ class ImmEstimator:
             probs = floor_probabilities(probs, self.probability_floor)
             log_mu_new = np.log(probs)
 
-        mean, cov = self._combine(filtered.mean, filtered.cov, probs)
+        if self._kernels is not None:
+            mean, cov = self._combine_compiled(filtered.mean, filtered.cov, probs)
+        else:
+            mean, cov = self._combine(filtered.mean, filtered.cov, probs)
         return ImmEstimate(
             filtered.t_s,
             mean,
@@ -261,3 +271,40 @@ class ImmEstimator:
             spread[:, idx] = wrap_angle(spread[:, idx])
         cov = np.einsum("j,jab->ab", probs, covs) + (spread.T * probs) @ spread
         return mean, symmetrise(cov)
+
+    def _mix_compiled(self, previous: ImmEstimate) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``log c_j`` (eq. 6) and the mixed initial conditions (eqs. 7-8), compiled."""
+        means = np.ascontiguousarray(previous.mode_means, dtype=float)
+        covs = np.ascontiguousarray(previous.mode_covs, dtype=float)
+        r, nx = means.shape
+        log_c = np.empty(r)
+        mixed_mean = np.empty((r, nx))
+        mixed_cov = np.empty((r, nx, nx))
+        self._kernels.imm_mix(
+            self.log_transition,
+            np.ascontiguousarray(previous.log_mode_probabilities, dtype=float),
+            means,
+            covs,
+            self._angle_mask,
+            log_c,
+            mixed_mean,
+            mixed_cov,
+        )
+        return log_c, mixed_mean, mixed_cov
+
+    def _combine_compiled(
+        self, means: np.ndarray, covs: np.ndarray, probs: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Eqs. (27)-(28) compiled (the covariance is symmetric by construction)."""
+        nx = means.shape[1]
+        mean = np.empty(nx)
+        cov = np.empty((nx, nx))
+        self._kernels.imm_combine(
+            np.ascontiguousarray(means, dtype=float),
+            np.ascontiguousarray(covs, dtype=float),
+            np.ascontiguousarray(probs, dtype=float),
+            self._angle_mask,
+            mean,
+            cov,
+        )
+        return mean, cov

@@ -12,6 +12,11 @@ Two noise forms:
 - ``"additive"``: sigma points over the state only; ``Q`` and ``R`` are added to the transformed
   covariances, and the measurement step redraws sigma points about the prediction (so that
   ``Q`` reaches ``P_xz`` and ``P_zz``, as in filterpy and in the linear Kalman filter).
+
+Two backends compute the same step: the numpy code in this module (the reference) and, when
+numba is installed, compiled kernels (:mod:`immukf_sitl.estimation._kernels_numba`) that do the
+filter's own arithmetic in four calls per step; ``f`` and ``g`` are called the same way by both.
+Their results differ by rounding only; the safeguard counters count the same events.
 """
 
 from __future__ import annotations
@@ -26,7 +31,7 @@ import scipy.stats
 from immukf_sitl.estimation.angles import wrap_angle, wrap_rows
 from immukf_sitl.estimation.diagnostics import FilterDiagnostics
 from immukf_sitl.estimation.linalg import block_diagonal, robust_cholesky, symmetrise
-from immukf_sitl.estimation.models import Measurement, ProcessModel
+from immukf_sitl.estimation.models import Measurement, MeasurementModel, ProcessModel
 from immukf_sitl.estimation.sigma_points import (
     JulierSigmaPoints,
     SigmaPointScheme,
@@ -36,6 +41,8 @@ from immukf_sitl.estimation.sigma_points import (
 )
 
 NoiseForm = Literal["augmented", "additive"]
+#: ``"auto"``: the compiled kernels when numba is installed, else numpy (the reference).
+Backend = Literal["auto", "numpy", "numba"]
 LOG_2PI = float(np.log(2.0 * np.pi))
 #: Tail probability beyond which an innovation is counted as an outlier (it is still used).
 OUTLIER_TAIL_PROBABILITY = 1e-9
@@ -59,6 +66,49 @@ def _w_only_columns(n_xv: int, n_aug: int) -> np.ndarray:
     return np.concatenate(
         [np.arange(1 + n_xv, 1 + n_aug), np.arange(1 + n_aug + n_xv, 1 + 2 * n_aug)]
     )
+
+
+@lru_cache(maxsize=64)
+def _process_column_source(n_xv: int, n_aug: int) -> np.ndarray:
+    """For each of the ``2 n_aug + 1`` columns, its index among the distinct (x, v) columns."""
+    source = np.zeros(2 * n_aug + 1, dtype=np.int64)  # the w-only columns repeat the centre
+    distinct = _distinct_process_columns(n_xv, n_aug)
+    source[distinct] = np.arange(distinct.size)
+    return source  # writeable like every kernel argument: one compiled signature
+
+
+@lru_cache(maxsize=64)
+def _zeros(n: int) -> np.ndarray:
+    zeros = np.zeros((n, n))
+    zeros.setflags(write=False)
+    return zeros
+
+
+@lru_cache(maxsize=64)
+def _identity_source(n_sigma: int) -> np.ndarray:
+    return np.arange(n_sigma, dtype=np.int64)
+
+
+def _angle_mask(n: int, angle_idx: tuple[int, ...]) -> np.ndarray:
+    mask = np.zeros(n, dtype=np.bool_)
+    mask[list(angle_idx)] = True
+    mask.setflags(write=False)
+    return mask
+
+
+def _load_kernels(backend: str):
+    """The compiled-kernel module for ``backend``, or None for the numpy reference."""
+    if backend not in ("auto", "numpy", "numba"):
+        raise ValueError(f"backend must be 'auto', 'numpy' or 'numba', not {backend!r}")
+    if backend == "numpy":
+        return None
+    try:
+        from immukf_sitl.estimation import _kernels_numba
+    except ImportError:
+        if backend == "numba":
+            raise
+        return None
+    return _kernels_numba
 
 
 @dataclass(frozen=True)
@@ -106,11 +156,16 @@ class UnscentedKalmanFilter:
         Sigma-point weights; default the paper's kappa form with ``kappa = 0``.
     noise_form : {"augmented", "additive"}
         See the module docstring.
+    backend : {"auto", "numpy", "numba"}
+        Implementation of the filter's arithmetic: numpy (the reference) or compiled kernels;
+        ``"auto"`` takes the kernels when numba is installed. See the module docstring.
 
     Attributes
     ----------
     diagnostics : FilterDiagnostics
         Counts of every safeguard applied so far.
+    backend : {"numpy", "numba"}
+        The backend in use.
     """
 
     def __init__(
@@ -118,6 +173,7 @@ class UnscentedKalmanFilter:
         process: ProcessModel,
         scheme: SigmaPointScheme | None = None,
         noise_form: NoiseForm = "augmented",
+        backend: Backend = "auto",
     ) -> None:
         if noise_form not in ("augmented", "additive"):
             raise ValueError(f"noise_form must be 'augmented' or 'additive', not {noise_form!r}")
@@ -127,6 +183,13 @@ class UnscentedKalmanFilter:
         self.scheme: SigmaPointScheme = scheme if scheme is not None else JulierSigmaPoints()
         self.noise_form: NoiseForm = noise_form
         self.diagnostics = FilterDiagnostics()
+        self._kernels = _load_kernels(backend)
+        self.backend: str = "numpy" if self._kernels is None else "numba"
+        self._x_angle = _angle_mask(process.nx, process.angle_idx)
+        # per measurement model: (model, angle mask, R as added by the compiled update); and the
+        # augmented form's constant measurement-noise sigma points per (model, batch)
+        self._output_constants: dict[int, tuple] = {}
+        self._w_points: dict[tuple[int, int], tuple] = {}
 
     def step(
         self,
@@ -151,11 +214,12 @@ class UnscentedKalmanFilter:
         """
         diag = self.diagnostics
         diag.steps += 1
-        proc = self.process
-        batch, nx = mean.shape
+        batch = mean.shape[0]
         if measurement is not None and not np.all(np.isfinite(measurement.z)):
             diag.skipped_nonfinite_measurement += 1
             measurement = None
+        if self._kernels is not None:
+            return self._step_compiled(t_s, mean, cov, u, measurement)
 
         cov = symmetrise(cov, diag)
         chol = robust_cholesky(cov, diag)
@@ -169,12 +233,30 @@ class UnscentedKalmanFilter:
             )
         pred_cov = symmetrise(pred_cov, diag)
 
-        zero = np.zeros(batch)
         if measurement is None:
+            zero = np.zeros(batch)
             return UkfEstimate(
                 t_s, pred_mean, pred_cov, pred_mean, pred_cov, None, None, zero, zero, False
             )
+        return self._update(
+            t_s, mean, cov, pred_mean, pred_cov, x_res, z_points, weights, measurement
+        )
 
+    def _update(
+        self,
+        t_s: float,
+        mean: np.ndarray,
+        cov: np.ndarray,
+        pred_mean: np.ndarray,
+        pred_cov: np.ndarray,
+        x_res: np.ndarray,
+        z_points: np.ndarray,
+        weights: SigmaWeights,
+        measurement: Measurement,
+    ) -> UkfEstimate:
+        """Eqs. (19)-(25) in numpy, from the transformed points (the reference update)."""
+        diag = self.diagnostics
+        proc = self.process
         model = measurement.model
         z_mean, z_cov, z_res = unscented_transform(z_points, weights, model.angle_idx)
         if self.noise_form == "additive":
@@ -202,12 +284,34 @@ class UnscentedKalmanFilter:
 
         nis = np.einsum("bi,bi->b", white_innov, white_innov)
         log_det = 2.0 * np.log(np.diagonal(z_chol, axis1=1, axis2=2)).sum(axis=1)
-        # eq. (25) in log space; its printed exponent lacks the minus sign
-        log_likelihood = -0.5 * (nis + log_det + model.nz * LOG_2PI)
-        diag.outlier_innovations += int(np.count_nonzero(nis > outlier_nis_threshold(model.nz)))
+        return self._finish(
+            t_s, mean, cov, pred_mean, pred_cov, new_mean, new_cov, innovation, z_cov, nis,
+            log_det, model.nz,
+        )  # fmt: skip
 
-        bad = ~(np.all(np.isfinite(new_mean), axis=1) & np.all(np.isfinite(new_cov), axis=(1, 2)))
-        if np.any(bad):
+    def _finish(
+        self,
+        t_s: float,
+        mean: np.ndarray,
+        cov: np.ndarray,
+        pred_mean: np.ndarray,
+        pred_cov: np.ndarray,
+        new_mean: np.ndarray,
+        new_cov: np.ndarray,
+        innovation: np.ndarray,
+        z_cov: np.ndarray,
+        nis: np.ndarray,
+        log_det: np.ndarray,
+        nz: int,
+    ) -> UkfEstimate:
+        """Likelihood (eq. 25), outlier count and the non-finite reset, shared by both backends."""
+        diag = self.diagnostics
+        # eq. (25) in log space; its printed exponent lacks the minus sign
+        log_likelihood = -0.5 * (nis + log_det + nz * LOG_2PI)
+        diag.outlier_innovations += int(np.count_nonzero(nis > outlier_nis_threshold(nz)))
+
+        bad = ~(np.isfinite(new_mean).all(axis=1) & np.isfinite(new_cov).all(axis=(1, 2)))
+        if bad.any():
             diag.nonfinite_state_reset += int(np.count_nonzero(bad))
             new_mean[bad] = np.where(np.isfinite(mean[bad]), mean[bad], 0.0)
             new_cov[bad] = np.where(np.isfinite(cov[bad]), cov[bad], 0.0)
@@ -224,6 +328,140 @@ class UnscentedKalmanFilter:
             nis,
             True,
         )
+
+    # -- the compiled backend ------------------------------------------------------------------
+
+    def _step_compiled(
+        self,
+        t_s: float,
+        mean: np.ndarray,
+        cov: np.ndarray,
+        u: np.ndarray,
+        measurement: Measurement | None,
+    ) -> UkfEstimate:
+        """The step of :meth:`step` with the filter's arithmetic in compiled kernels.
+
+        Same equations, same calls of ``f`` and ``g`` (on the same points), same safeguards:
+        a factor the kernels are unsure of goes to :func:`robust_cholesky`, and an update whose
+        ``P_zz`` they cannot factor is redone by the numpy :meth:`_update`.
+        """
+        kernels = self._kernels
+        diag = self.diagnostics
+        proc = self.process
+        augmented = self.noise_form == "augmented"
+        mean = np.ascontiguousarray(mean, dtype=float)
+        cov = np.ascontiguousarray(cov, dtype=float)
+        batch, nx = mean.shape
+
+        sym = np.empty_like(cov)
+        chol = np.empty_like(cov)
+        diag.symmetrised += batch
+        if not kernels.factor(cov, sym, chol):
+            chol = robust_cholesky(sym, diag)
+        if augmented:
+            nv = proc.nv
+            n_aug = nx + nv + (measurement.model.nz if measurement is not None else 0)
+            weights = self.scheme.weights(n_aug)
+            n_distinct = 1 + 2 * (nx + nv)
+            x_distinct = np.empty((nx, batch, n_distinct))
+            v_distinct = np.empty((nv, batch, n_distinct))
+            kernels.augmented_process_points(
+                mean, chol, proc.noise_sqrt, weights.spread, x_distinct, v_distinct
+            )  # eqs. (9)-(11), (13)
+            moved = proc.f(t_s, x_distinct, u, v_distinct)  # eq. (14)
+            source = _process_column_source(nx + nv, n_aug)
+            added_cov = _zeros(nx)
+        else:
+            weights = self.scheme.weights(nx)
+            points = np.empty((nx, batch, 2 * nx + 1))
+            kernels.state_points(mean, chol, weights.spread, points)
+            moved = proc.f(t_s, points, u, None)
+            source = _identity_source(2 * nx + 1)
+            added_cov = proc.additive_noise_cov
+        n_sigma = source.size
+        x_points = np.empty((nx, batch, n_sigma))
+        pred_mean = np.empty((batch, nx))
+        pred_cov = np.empty((batch, nx, nx))
+        x_res = np.empty((batch, nx, n_sigma))
+        # eqs. (16)-(18)
+        kernels.predict_moments(
+            np.ascontiguousarray(moved, dtype=float), source, weights.mean_weights,
+            weights.cov_weights, self._x_angle, added_cov, x_points, pred_mean, pred_cov, x_res,
+        )  # fmt: skip
+        diag.symmetrised += batch if augmented else 2 * batch  # as the numpy path counts
+        if measurement is None:
+            zero = np.zeros(batch)
+            return UkfEstimate(
+                t_s, pred_mean, pred_cov, pred_mean, pred_cov, None, None, zero, zero, False
+            )
+
+        model = measurement.model
+        z_angle, added_r = self._output_constants_of(model)
+        if augmented:
+            w_points = self._measurement_noise_points(model, weights, nx + proc.nv, batch)
+            z_points = model.g(t_s, x_points, u, w_points)  # eq. (15)
+        else:
+            # redraw about the prediction so that Q reaches P_xz and P_zz (as filterpy does)
+            chol_pred = np.empty_like(pred_cov)
+            if not kernels.factor(pred_cov, np.empty_like(pred_cov), chol_pred):
+                chol_pred = robust_cholesky(pred_cov, diag)
+            kernels.state_points(pred_mean, chol_pred, weights.spread, x_points)
+            kernels.centred(x_points, pred_mean, self._x_angle, x_res)
+            z_points = model.g(t_s, x_points, u, None)
+        z_points = np.ascontiguousarray(z_points, dtype=float)
+        nz = model.nz
+        z_cov = np.empty((batch, nz, nz))
+        innovation = np.empty((batch, nz))
+        new_mean = np.empty((batch, nx))
+        new_cov = np.empty((batch, nx, nx))
+        nis = np.empty(batch)
+        log_det = np.empty(batch)
+        # eqs. (19)-(24)
+        solved = kernels.update(
+            pred_mean, pred_cov, x_res, z_points, weights.mean_weights, weights.cov_weights,
+            z_angle, self._x_angle, np.ascontiguousarray(measurement.z), added_r, z_cov,
+            innovation, new_mean, new_cov, nis, log_det,
+        )  # fmt: skip
+        if not solved:
+            return self._update(
+                t_s, mean, sym, pred_mean, pred_cov, x_res, z_points, weights, measurement
+            )
+        diag.symmetrised += 2 * batch  # P_zz and P(k+1|k+1), symmetric by construction
+        return self._finish(
+            t_s, mean, sym, pred_mean, pred_cov, new_mean, new_cov, innovation, z_cov, nis,
+            log_det, nz,
+        )  # fmt: skip
+
+    def _output_constants_of(self, model: MeasurementModel) -> tuple[np.ndarray, np.ndarray]:
+        """Angle mask of the output and the ``R`` the update adds (zeros when augmented)."""
+        entry = self._output_constants.get(id(model))
+        if entry is None or entry[0] is not model:
+            added_r = model.noise_cov if self.noise_form == "additive" else _zeros(model.nz)
+            entry = (
+                model,
+                _angle_mask(model.nz, model.angle_idx),
+                np.ascontiguousarray(added_r, dtype=float),
+            )
+            self._output_constants[id(model)] = entry
+        return entry[1], entry[2]
+
+    def _measurement_noise_points(
+        self, model: MeasurementModel, weights: SigmaWeights, n_xv: int, batch: int
+    ) -> np.ndarray:
+        """The w rows of the augmented sigma points (eq. 11): constant for a model and batch."""
+        key = (id(model), batch)
+        entry = self._w_points.get(key)
+        if entry is None or entry[0] is not model:
+            nw = model.nz
+            n_aug = n_xv + nw
+            points = np.zeros((nw, batch, 2 * n_aug + 1))
+            offsets = weights.spread * model.noise_sqrt
+            points[:, :, 1 + n_xv : 1 + n_aug] = (0.0 + offsets)[:, None, :]
+            points[:, :, 1 + n_aug + n_xv :] = (0.0 - offsets)[:, None, :]
+            points.setflags(write=False)
+            entry = (model, points)
+            self._w_points[key] = entry
+        return entry[1]
 
     # -- the two noise forms -------------------------------------------------------------------
 

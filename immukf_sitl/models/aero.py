@@ -201,6 +201,12 @@ def _prop_thrust_torque(
     return thrust, torque
 
 
+def _writeable_contiguous(a: np.ndarray) -> np.ndarray:
+    """``a`` as a C-contiguous float array the kernels accept (a copy only when needed)."""
+    a = np.ascontiguousarray(a, dtype=float)
+    return a if a.flags.writeable else a.copy()
+
+
 def _wrap_pi(angle: np.ndarray) -> np.ndarray:
     """Wrap angles to [-pi, pi)."""
     return (angle + math.pi) % _TWO_PI - math.pi
@@ -363,22 +369,28 @@ class AeroModel:
 
     @staticmethod
     def _flat(x: np.ndarray, u: np.ndarray, v: np.ndarray | None, n: int):
-        """Batch flattened to columns for the kernels: x (12, N), u (4, N), v (6, N)."""
-        x2 = np.ascontiguousarray(x.reshape(x.shape[0], n))
+        """Batch flattened to columns for the kernels: x (12, N), u (4, N), v (6, N).
+
+        Each comes out C-contiguous and writeable, whatever the caller passes: numba compiles
+        one signature per layout and read-only flag, and a read-only broadcast view (a single
+        state, a (6,) noise) would cost a second compile of every kernel.
+        """
+        x2 = _writeable_contiguous(x.reshape(x.shape[0], n))
         if u.ndim == 1:
             u2 = np.broadcast_to(u[:, None], (u.shape[0], n))
         else:
             u2 = np.broadcast_to(u, (u.shape[0], *x.shape[1:])).reshape(u.shape[0], n)
         if v is None:
-            v2 = np.broadcast_to(np.zeros((6, 1)), (6, n))
+            v2 = np.zeros((6, n))
         else:
             v = np.asarray(v, dtype=float)
             if v.ndim == 1:
                 v2 = np.broadcast_to(v[:, None], (6, n))
+            elif v.shape[1:] == x.shape[1:]:
+                v2 = v.reshape(6, n)
             else:
                 v2 = np.broadcast_to(v, (6, *x.shape[1:])).reshape(6, n)
-        # contiguous copies: one compiled signature per kernel, whatever the caller passes
-        return x2, np.ascontiguousarray(u2), np.ascontiguousarray(v2)
+        return x2, _writeable_contiguous(u2), _writeable_contiguous(v2)
 
     # -----------------------------------------------------------------------------------------
     # constructors and noise
