@@ -166,6 +166,31 @@ def test_mixing_and_combination_are_the_numpy_ones(kernels):
     np.testing.assert_allclose(cov, ref_cov, rtol=RTOL, atol=1e-15)
 
 
+@pytest.mark.parametrize(
+    "log_lik",
+    [
+        [-3.0, -1e6, -2e6, -5.0, -1e7, -4.0, -9e5],  # floor over several rounds
+        [-3.0, -np.inf, -2.0, -5.0, -np.inf, -4.0, -1.0],  # modes that rejected the data
+        [-np.inf] * 7,  # every mode rejected it: the predicted odds stay
+        [1e12, 1e12 - 3.0, 0.0, 1.0, 2.0, 3.0, 4.0],  # huge log-likelihoods keep precision
+    ],
+)
+@pytest.mark.parametrize("floor", [0.0, 1e-6, 0.01])
+def test_mode_probabilities_are_the_numpy_ones(kernels, log_lik, floor):
+    process, _ = oscillator_bank()
+    imm = ImmEstimator(
+        UnscentedKalmanFilter(process, backend="numpy"), sticky_transition(7, 0.9), floor
+    )
+    log_lik = np.array(log_lik)
+    log_c = np.log(np.random.default_rng(9).dirichlet(np.ones(7)))
+    ref_log_mu, ref_probs = imm._posterior(log_lik, log_c)
+    log_mu, probs = np.empty(7), np.empty(7)
+    kernels.imm_posterior(log_lik, log_c, floor, log_mu, probs)
+    np.testing.assert_allclose(probs, ref_probs, rtol=RTOL, atol=1e-300)
+    np.testing.assert_allclose(log_mu, ref_log_mu, rtol=RTOL)
+    assert probs.min() >= floor * (1 - 1e-12)
+
+
 # -- whole filters: numpy and compiled backends side by side ----------------------------------
 
 

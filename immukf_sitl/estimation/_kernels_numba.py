@@ -403,6 +403,65 @@ def imm_mix(log_transition, log_mu, means, covs, angle, log_c, mixed_mean, mixed
 
 
 @numba.njit(cache=True, error_model="numpy")
+def _nan_max(values):
+    """``np.max`` of a 1-D array: NaN if any element is NaN."""
+    peak = -math.inf
+    for v in values:
+        if math.isnan(v):
+            return math.nan
+        if v > peak:
+            peak = v
+    return peak
+
+
+@numba.njit(cache=True, error_model="numpy")
+def imm_posterior(log_lik, log_c, floor, log_mu, probs):
+    """Eq. (26) in log space, then the probability floor (``imm.floor_probabilities``).
+
+    ``mu_j`` is proportional to ``Lambda_j c_j``; the common factor ``max_j Lambda_j`` is divided
+    out first; when no likelihood is finite the predicted odds ``c_j`` are kept.
+    """
+    r = log_lik.size
+    best = _nan_max(log_lik)
+    for j in range(r):
+        log_mu[j] = log_c[j] if not math.isfinite(best) else (log_lik[j] - best) + log_c[j]
+    peak = _nan_max(log_mu)
+    if not math.isfinite(peak):
+        peak = 0.0
+    total = 0.0
+    for j in range(r):
+        total += math.exp(log_mu[j] - peak)
+    log_norm = math.log(total) + peak
+    for j in range(r):
+        log_mu[j] -= log_norm
+        probs[j] = math.exp(log_mu[j])
+    if not (floor > 0.0 and -_nan_max(-probs) < floor):
+        return
+    fixed = probs < floor
+    scaled = probs.copy()
+    for _ in range(r):
+        n_fixed = 0
+        free_sum = 0.0
+        for j in range(r):
+            if fixed[j]:
+                n_fixed += 1
+            else:
+                free_sum += probs[j]
+        factor = (1.0 - floor * n_fixed) / free_sum
+        changed = False
+        for j in range(r):
+            scaled[j] = probs[j] * factor
+            if not fixed[j] and scaled[j] < floor:
+                fixed[j] = True
+                changed = True
+        if not changed:
+            break
+    for j in range(r):
+        probs[j] = floor if fixed[j] else scaled[j]
+        log_mu[j] = math.log(probs[j])
+
+
+@numba.njit(cache=True, error_model="numpy")
 def imm_combine(means, covs, probs, angle, mean, cov):
     """Eqs. (27)-(28): the probability-weighted mean (circular for angles) and covariance."""
     r, nx = means.shape

@@ -204,23 +204,11 @@ class ImmEstimator:
 
         filtered = self.ukf.step(t_s, mixed_mean, mixed_cov, u, measurement)
 
-        # eq. (26) in log space: mu_j proportional to Lambda_j c_j. The common factor
-        # max_j Lambda_j is divided out first so that huge log-likelihoods keep their precision.
-        log_lik = filtered.log_likelihood
-        best = np.max(log_lik)
-        if not np.isfinite(best):  # every mode rejected the data: keep the predicted odds
-            log_post = log_c.copy()
-        else:
-            log_post = (log_lik - best) + log_c
-        log_mu_new = log_post - logsumexp(log_post)
-        probs = np.exp(log_mu_new)
-        if self.probability_floor > 0.0 and probs.min() < self.probability_floor:
-            probs = floor_probabilities(probs, self.probability_floor)
-            log_mu_new = np.log(probs)
-
         if self._kernels is not None:
+            log_mu_new, probs = self._posterior_compiled(filtered.log_likelihood, log_c)
             mean, cov = self._combine_compiled(filtered.mean, filtered.cov, probs)
         else:
+            log_mu_new, probs = self._posterior(filtered.log_likelihood, log_c)
             mean, cov = self._combine(filtered.mean, filtered.cov, probs)
         return ImmEstimate(
             filtered.t_s,
@@ -235,6 +223,22 @@ class ImmEstimator:
             filtered.nis,
             filtered.updated,
         )
+
+    def _posterior(self, log_lik: np.ndarray, log_c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Log and linear mode probabilities after eq. (26) and the probability floor."""
+        # eq. (26) in log space: mu_j proportional to Lambda_j c_j. The common factor
+        # max_j Lambda_j is divided out first so that huge log-likelihoods keep their precision.
+        best = np.max(log_lik)
+        if not np.isfinite(best):  # every mode rejected the data: keep the predicted odds
+            log_post = log_c.copy()
+        else:
+            log_post = (log_lik - best) + log_c
+        log_mu_new = log_post - logsumexp(log_post)
+        probs = np.exp(log_mu_new)
+        if self.probability_floor > 0.0 and probs.min() < self.probability_floor:
+            probs = floor_probabilities(probs, self.probability_floor)
+            log_mu_new = np.log(probs)
+        return log_mu_new, probs
 
     def _mix(
         self, means: np.ndarray, covs: np.ndarray, mixing: np.ndarray
@@ -291,6 +295,17 @@ class ImmEstimator:
             mixed_cov,
         )
         return log_c, mixed_mean, mixed_cov
+
+    def _posterior_compiled(
+        self, log_lik: np.ndarray, log_c: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`_posterior` compiled."""
+        log_mu = np.empty(log_c.size)
+        probs = np.empty(log_c.size)
+        self._kernels.imm_posterior(
+            np.ascontiguousarray(log_lik, dtype=float), log_c, self.probability_floor, log_mu, probs
+        )
+        return log_mu, probs
 
     def _combine_compiled(
         self, means: np.ndarray, covs: np.ndarray, probs: np.ndarray

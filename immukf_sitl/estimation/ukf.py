@@ -215,7 +215,7 @@ class UnscentedKalmanFilter:
         diag = self.diagnostics
         diag.steps += 1
         batch = mean.shape[0]
-        if measurement is not None and not np.all(np.isfinite(measurement.z)):
+        if measurement is not None and not np.isfinite(measurement.z).all():
             diag.skipped_nonfinite_measurement += 1
             measurement = None
         if self._kernels is not None:
@@ -310,8 +310,11 @@ class UnscentedKalmanFilter:
         log_likelihood = -0.5 * (nis + log_det + nz * LOG_2PI)
         diag.outlier_innovations += int(np.count_nonzero(nis > outlier_nis_threshold(nz)))
 
-        bad = ~(np.isfinite(new_mean).all(axis=1) & np.isfinite(new_cov).all(axis=(1, 2)))
-        if bad.any():
+        if np.isfinite(new_mean).all() and np.isfinite(new_cov).all():
+            bad = None
+        else:
+            bad = ~(np.isfinite(new_mean).all(axis=1) & np.isfinite(new_cov).all(axis=(1, 2)))
+        if bad is not None and bad.any():
             diag.nonfinite_state_reset += int(np.count_nonzero(bad))
             new_mean[bad] = np.where(np.isfinite(mean[bad]), mean[bad], 0.0)
             new_cov[bad] = np.where(np.isfinite(cov[bad]), cov[bad], 0.0)

@@ -28,7 +28,7 @@ NAMES = (
     "C_ell_0 C_ell_beta C_ell_p C_ell_r C_ell_delta_a C_ell_delta_r "
     "C_n_0 C_n_beta C_n_p C_n_r C_n_delta_a C_n_delta_r "
     "a_q b_q c_q b_motor c_volt c_i0 t_0 t_1 t_2 torque_on_roll "
-    "isa_r0 isa_lapse_t0 isa_rho0 isa_exp"
+    "isa_r0 isa_lapse_t0 isa_rho0 isa_exp imu_rx imu_ry imu_rz has_lever"
 ).split()
 (
     G1, G2, G3, G4, G5, G6, G7, G8, INV_JY, INV_MASS, G0, DG, H0, RHO_CONST, S, B, C, C_2, B_2,
@@ -37,7 +37,7 @@ NAMES = (
     CL_0, CL_B, CL_P, CL_R, CL_DA, CL_DR,
     CN0, CNB, CNP, CNR, CNDA, CNDR,
     A_Q, B_Q, C_Q, B_MOTOR, C_VOLT, C_I0, T_0, T_1, T_2, TORQUE_ON_ROLL,
-    ISA_R0, ISA_LAPSE_T0, ISA_RHO0, ISA_EXP,
+    ISA_R0, ISA_LAPSE_T0, ISA_RHO0, ISA_EXP, IMU_RX, IMU_RY, IMU_RZ, HAS_LEVER,
 ) = range(len(NAMES))  # fmt: skip
 
 
@@ -249,3 +249,45 @@ def forces_moments_batch(x, u, k, out):
         _forces_moments(xs, us, k, fm)
         for i in range(6):
             out[i, j] = fm[i]
+
+
+@numba.njit(cache=True, error_model="numpy")
+def imu_batch(x, u, k, out):
+    """IMU reading ``[f_x, f_y, f_z, p, q, r]`` of every column of x (12, N) into out (6, N).
+
+    Specific force at the CG, moved to the IMU by ``omega_dot x r + omega x (omega x r)`` when
+    the lever arm is non-zero (see ``AeroModel.imu``).
+    """
+    n = x.shape[1]
+    xs = np.empty(12)
+    us = np.empty(4)
+    fm = np.empty(6)
+    inv_m = k[INV_MASS]
+    rx, ry, rz = k[IMU_RX], k[IMU_RY], k[IMU_RZ]
+    for j in range(n):
+        for i in range(12):
+            xs[i] = x[i, j]
+        for i in range(4):
+            us[i] = u[i, j]
+        _forces_moments(xs, us, k, fm)
+        p, q, r = xs[9], xs[10], xs[11]
+        f_x = fm[0] * inv_m
+        f_y = fm[1] * inv_m
+        f_z = fm[2] * inv_m
+        if k[HAS_LEVER] != 0.0:
+            ell, em, en = fm[3], fm[4], fm[5]
+            p_dot = k[G1] * p * q - k[G2] * q * r + k[G3] * ell + k[G4] * en
+            q_dot = k[G5] * p * r - k[G6] * (p * p - r * r) + k[INV_JY] * em
+            r_dot = k[G7] * p * q - k[G1] * q * r + k[G4] * ell + k[G8] * en
+            wr_x = q * rz - r * ry
+            wr_y = r * rx - p * rz
+            wr_z = p * ry - q * rx
+            f_x += (q_dot * rz - r_dot * ry) + (q * wr_z - r * wr_y)
+            f_y += (r_dot * rx - p_dot * rz) + (r * wr_x - p * wr_z)
+            f_z += (p_dot * ry - q_dot * rx) + (p * wr_y - q * wr_x)
+        out[0, j] = f_x
+        out[1, j] = f_y
+        out[2, j] = f_z
+        out[3, j] = p
+        out[4, j] = q
+        out[5, j] = r

@@ -358,6 +358,10 @@ class AeroModel:
             "isa_rho0": ISA_RHO0_KGPM3,
             "isa_exp": ISA_DENSITY_EXPONENT,
         }
+        lever = c["imu_lever"]
+        values |= dict(zip(("imu_rx", "imu_ry", "imu_rz"), (0.0, 0.0, 0.0) if lever is None
+                           else lever, strict=True))  # fmt: skip
+        values["has_lever"] = 0.0 if lever is None else 1.0
         values |= {f.name: getattr(a, f.name) for f in dataclasses.fields(a)}
         values |= dataclasses.asdict(c["prop"])
         return _aero_numba, _aero_numba.pack_constants(values)
@@ -375,11 +379,7 @@ class AeroModel:
         one signature per layout and read-only flag, and a read-only broadcast view (a single
         state, a (6,) noise) would cost a second compile of every kernel.
         """
-        x2 = _writeable_contiguous(x.reshape(x.shape[0], n))
-        if u.ndim == 1:
-            u2 = np.broadcast_to(u[:, None], (u.shape[0], n))
-        else:
-            u2 = np.broadcast_to(u, (u.shape[0], *x.shape[1:])).reshape(u.shape[0], n)
+        x2, u2 = AeroModel._flat_xu(x, u, n)
         if v is None:
             v2 = np.zeros((6, n))
         else:
@@ -390,7 +390,18 @@ class AeroModel:
                 v2 = v.reshape(6, n)
             else:
                 v2 = np.broadcast_to(v, (6, *x.shape[1:])).reshape(6, n)
-        return x2, _writeable_contiguous(u2), _writeable_contiguous(v2)
+        return x2, u2, _writeable_contiguous(v2)
+
+    @staticmethod
+    def _flat_xu(x: np.ndarray, u: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """The state and control parts of :meth:`_flat`."""
+        x2 = _writeable_contiguous(x.reshape(x.shape[0], n))
+        if u.ndim == 1:
+            u2 = np.empty((u.shape[0], n))
+            u2[...] = u[:, None]
+        else:
+            u2 = np.broadcast_to(u, (u.shape[0], *x.shape[1:])).reshape(u.shape[0], n)
+        return x2, _writeable_contiguous(u2)
 
     # -----------------------------------------------------------------------------------------
     # constructors and noise
@@ -441,7 +452,7 @@ class AeroModel:
         if self._kernel is not None:
             module, consts = self._kernel
             n = x[0].size
-            x2, u2, _ = self._flat(x, u, None, n)
+            x2, u2 = self._flat_xu(x, u, n)
             module.forces_moments_batch(x2, u2, consts, out.reshape(6, n))
             return
         self._forces_moments(x, u, out)
@@ -685,7 +696,13 @@ class AeroModel:
         u = np.asarray(u, dtype=float)
         c = self._c
         out = np.empty((6, *x.shape[1:]), dtype=float)
-        self._forces_moments_into(x, u, out)
+        if self._kernel is not None:
+            module, consts = self._kernel
+            n = x[0].size
+            x2, u2 = self._flat_xu(x, u, n)
+            module.imu_batch(x2, u2, consts, out.reshape(6, n))
+            return out
+        self._forces_moments(x, u, out)
         lever = c["imu_lever"]
         p, q, r = x[9], x[10], x[11]
         if lever is not None:
