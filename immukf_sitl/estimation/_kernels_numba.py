@@ -359,6 +359,7 @@ def imm_mix(log_transition, log_mu, means, covs, angle, log_c, mixed_mean, mixed
     r, nx = means.shape
     mixing = np.empty((r, r))
     spread = np.empty((r, nx))
+    row = np.empty(nx)
     for j in range(r):
         peak = -math.inf
         for i in range(r):
@@ -374,14 +375,21 @@ def imm_mix(log_transition, log_mu, means, covs, angle, log_c, mixed_mean, mixed
         log_c[j] = math.log(total) + peak  # eq. (6): c_j
         for i in range(r):
             mixing[i, j] = math.exp(mixing[i, j] - log_c[j])  # mu_{i|j}
+    sines = np.zeros((r, nx))
+    cosines = np.zeros((r, nx))
+    for a in range(nx):
+        if angle[a]:
+            for i in range(r):
+                sines[i, a] = math.sin(means[i, a])
+                cosines[i, a] = math.cos(means[i, a])
     for j in range(r):
         for a in range(nx):  # eq. (7), circular for angles
             if angle[a]:
                 s_sum = 0.0
                 c_sum = 0.0
                 for i in range(r):
-                    s_sum += mixing[i, j] * math.sin(means[i, a])
-                    c_sum += mixing[i, j] * math.cos(means[i, a])
+                    s_sum += mixing[i, j] * sines[i, a]
+                    c_sum += mixing[i, j] * cosines[i, a]
                 mixed_mean[j, a] = math.atan2(s_sum, c_sum)
             else:
                 total = 0.0
@@ -394,12 +402,14 @@ def imm_mix(log_transition, log_mu, means, covs, angle, log_c, mixed_mean, mixed
         _wrap_columns(spread, angle)
         for a in range(nx):  # eq. (8)
             for c in range(nx):
-                mixed_cov[j, a, c] = 0.0
+                row[c] = 0.0
             for i in range(r):
                 w = mixing[i, j]
                 wa = spread[i, a] * w
                 for c in range(nx):
-                    mixed_cov[j, a, c] += w * covs[i, a, c] + wa * spread[i, c]
+                    row[c] += w * covs[i, a, c] + wa * spread[i, c]
+            for c in range(nx):
+                mixed_cov[j, a, c] = row[c]
 
 
 @numba.njit(cache=True, error_model="numpy")
