@@ -124,11 +124,12 @@ def augmented_process_points(mean, chol, noise_sqrt, spread, x_out, v_out):
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _gather_moments(points, b, src, wm, angle, cols, mean):
+def _gather_moments(points, b, src, wm, angle, cols, mean, sines, cosines):
     """Columns ``points[:, b, src[s]]`` into ``cols`` (S, n) and their weighted means.
 
     Sums run over ``s`` in order for every row at once (independent chains, so they pipeline);
-    angle rows get the circular mean, with one sine and cosine per distinct column.
+    angle rows get the circular mean, with one sine and cosine per distinct column (``sines``,
+    ``cosines``: scratch of the distinct count).
     """
     n = points.shape[0]
     nd = points.shape[2]
@@ -144,22 +145,14 @@ def _gather_moments(points, b, src, wm, angle, cols, mean):
             mean[i] += value * w
     for i in range(n):
         if angle[i]:
+            for d in range(nd):
+                sines[d] = math.sin(points[i, b, d])
+                cosines[d] = math.cos(points[i, b, d])
             sin_sum = 0.0
             cos_sum = 0.0
-            if nd == n_sigma:  # every column distinct
-                for s in range(n_sigma):
-                    value = points[i, b, src[s]]
-                    sin_sum += math.sin(value) * wm[s]
-                    cos_sum += math.cos(value) * wm[s]
-            else:
-                sines = np.empty(nd)
-                cosines = np.empty(nd)
-                for d in range(nd):
-                    sines[d] = math.sin(points[i, b, d])
-                    cosines[d] = math.cos(points[i, b, d])
-                for s in range(n_sigma):
-                    sin_sum += sines[src[s]] * wm[s]
-                    cos_sum += cosines[src[s]] * wm[s]
+            for s in range(n_sigma):
+                sin_sum += sines[src[s]] * wm[s]
+                cos_sum += cosines[src[s]] * wm[s]
             mean[i] = math.atan2(sin_sum, cos_sum)
 
 
@@ -201,8 +194,10 @@ def predict_moments(moved, src, wm, wc, angle, add_cov, x_points, mean, cov, res
     rt = np.empty((n_sigma, nx))
     acc = np.empty((nx, nx))
     m = np.empty(nx)
+    sines = np.empty(nd)
+    cosines = np.empty(nd)
     for b in range(batch):
-        _gather_moments(moved, b, src, wm, angle, rt, m)
+        _gather_moments(moved, b, src, wm, angle, rt, m, sines, cosines)
         for i in range(nx):
             mean[b, i] = m[i]
             for s in range(n_sigma):
@@ -277,6 +272,8 @@ def update(
     src = np.arange(n_sigma)
     zr = np.empty((n_sigma, nz))
     xw = np.empty((n_sigma, nx))
+    sines = np.empty(n_sigma)
+    cosines = np.empty(n_sigma)
     zm = np.empty(nz)
     acc = np.empty((nz, nz))
     cross_t = np.empty((nz, nx))
@@ -286,7 +283,7 @@ def update(
     outer = np.empty((nx, nx))
     ok = True
     for b in range(batch):
-        _gather_moments(z_points, b, src, wm, z_angle, zr, zm)
+        _gather_moments(z_points, b, src, wm, z_angle, zr, zm, sines, cosines)
         for i in range(nz):
             innovation[b, i] = z[i] - zm[i]  # eq. (21)
         _wrap_columns(innovation[b : b + 1], z_angle)
