@@ -214,11 +214,19 @@ def predict_moments(moved, src, wm, wc, angle, add_cov, x_points, mean, cov, res
                 cov[b, j, i] = value
 
 
+@numba.njit(cache=True, inline="always", error_model="numpy")
+def _fill(a, value):
+    """``a[:, :] = value`` as a loop (array expressions cost compile time)."""
+    for i in range(a.shape[0]):
+        for j in range(a.shape[1]):
+            a[i, j] = value
+
+
 @numba.njit(cache=True, error_model="numpy")
 def _weighted_outer(rt, weights, acc):
     """``acc = sum_s (r_s w_s) r_s'`` for rows ``rt[s]`` (full square; callers read i >= j)."""
     n_sigma, n = rt.shape
-    acc[:, :] = 0.0
+    _fill(acc, 0.0)
     for s in range(n_sigma):
         w = weights[s]
         for i in range(n):
@@ -299,7 +307,7 @@ def update(
             w = wc[s]
             for a in range(nx):
                 xw[s, a] = x_res[b, a, s] * w
-        cross_t[:, :] = 0.0
+        _fill(cross_t, 0.0)
         for s in range(n_sigma):
             for c in range(nz):
                 zc = zr[s, c]
@@ -336,7 +344,7 @@ def update(
                 gain_innov += white[i, a] * white_innov[i]
             new_mean[b, a] = pred_mean[b, a] + gain_innov
         _wrap_columns(new_mean[b : b + 1], x_angle)
-        outer[:, :] = 0.0  # eq. (23): P - W'W, symmetric by construction
+        _fill(outer, 0.0)  # eq. (23): P - W'W, symmetric by construction
         for i in range(nz):
             for a in range(nx):
                 wa = white[i, a]
@@ -442,10 +450,17 @@ def imm_posterior(log_lik, log_c, floor, log_mu, probs):
     for j in range(r):
         log_mu[j] -= log_norm
         probs[j] = math.exp(log_mu[j])
-    if not (floor > 0.0 and -_nan_max(-probs) < floor):
+    lowest = math.inf
+    for j in range(r):
+        if math.isnan(probs[j]):  # as np.min
+            return
+        lowest = min(lowest, probs[j])
+    if not (floor > 0.0 and lowest < floor):
         return
-    fixed = probs < floor
-    scaled = probs.copy()
+    fixed = np.empty(r, dtype=np.bool_)
+    scaled = np.empty(r)
+    for j in range(r):
+        fixed[j] = probs[j] < floor
     for _ in range(r):
         n_fixed = 0
         free_sum = 0.0
