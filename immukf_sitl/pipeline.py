@@ -8,10 +8,14 @@ per IMU sample and turns mode probabilities into detection events. The MAVLink s
 the same answers.
 
 Stream rules, each counted in :class:`StreamCounters`: an IMU sample not newer than the last is
-dropped (out of order or duplicate); a gap of several IMU periods is bridged by predict-only
+dropped (out of order or duplicate), unless the clock went back by more than ``max_gap_s`` (a
+new flight: everything restarts); a gap of several IMU periods is bridged by predict-only
 steps (up to ``max_gap_s``, beyond which the filter re-aligns); the filter waits for the first
-actuator sample and the first GPS fix. After the detector's settling time the mode-matched
-filters are re-seeded from the fault-free one (paper, section 2.A).
+actuator sample and the first GPS fix; a fix far off the estimate is rejected (a run of
+rejections re-aligns instead); stale servo outputs hold the decisions; an estimate that
+diverges (non-finite, or faster than any aircraft) is dropped and the filter re-aligns. After
+the detector's settling time the mode-matched filters are re-seeded from the fault-free one
+(paper, section 2.A).
 """
 
 from __future__ import annotations
@@ -50,6 +54,14 @@ class PipelineConfig:
     detector: DetectorConfig = field(default_factory=DetectorConfig)
     min_align_speed_mps: float = 10.0
     max_gap_s: float = 1.0
+    #: a fix whose position is this many sigma (squared, 3 d.o.f.) off the estimate is rejected
+    gps_gate_chi2: float = 50.0
+    #: after this many rejected fixes in a row the filter re-aligns on the next one
+    gps_max_rejections: int = 5
+    #: servo outputs older than this are stale: the filter steps on, decisions are held
+    actuator_timeout_s: float = 0.1
+    #: an estimate faster than this (m/s) has diverged: re-align
+    max_speed_mps: float = 150.0
 
 
 @dataclass
@@ -63,7 +75,11 @@ class StreamCounters:
     out_of_order: int = 0
     gap_steps: int = 0
     realignments: int = 0
+    restarts: int = 0
     bad_samples: int = 0
+    rejected_gps: int = 0
+    stale_actuator_steps: int = 0
+    diverged: int = 0
 
 
 @dataclass(frozen=True)
@@ -116,6 +132,8 @@ class EstimatorPipeline:
         self._controls: np.ndarray | None = None
         self._gps_queue: deque[GpsSample] = deque(maxlen=16)
         self._last_imu_s: float | None = None
+        self._actuator_s: float | None = None
+        self._gps_rejections = 0
         self._restart_at_s: float | None = None
 
     def warm_up(self) -> None:
@@ -149,6 +167,7 @@ class EstimatorPipeline:
         self.counters.actuator_samples += 1
         try:
             self._controls = self.params.actuators.pwm_to_controls(sample.pwm_us)
+            self._actuator_s = sample.time_s
         except ValueError:
             self.counters.bad_samples += 1
 
@@ -174,6 +193,8 @@ class EstimatorPipeline:
         counters = self.counters
         counters.imu_samples += 1
         t_s = sample.time_s
+        if self._last_imu_s is not None and t_s < self._last_imu_s - self.config.max_gap_s:
+            self._restart(t_s)  # the sender's clock went back: a new flight (e.g. sim restarted)
         if self._last_imu_s is not None and t_s <= self._last_imu_s + 1e-6:
             counters.out_of_order += 1
             return None
@@ -191,11 +212,57 @@ class EstimatorPipeline:
             elif gap_steps > 0:
                 counters.gap_steps += gap_steps
                 self._bridge_gap(previous_s, gap_steps, imu)
+        if self.estimator is not None and gps is not None:
+            gps = self._gate_gps(gps)
         if self.estimator is None:
             if gps is None or gps[3] < self.config.min_align_speed_mps:
                 return None
             self._align(t_s, imu, gps)
-        return self._step(t_s, imu, gps)
+        out = self._step(t_s, imu, gps)
+        speed = float(np.linalg.norm(out.nav.velocity_ned_mps))
+        if not (np.all(np.isfinite(out.nav.euler_rad)) and speed < self.config.max_speed_mps):
+            counters.diverged += 1
+            counters.realignments += 1
+            self.estimator = None  # re-align on the next fix; publish nothing from this one
+            return None
+        return out
+
+    def _restart(self, t_s: float) -> None:
+        """Forget the old stream at a clock jump back to ``t_s`` (counted in ``restarts``)."""
+        self.counters.restarts += 1
+        self.estimator = None
+        self.detector = None
+        self._last_imu_s = None
+        self._gps_rejections = 0
+        # fixes of the new stream may already be queued behind the old one's
+        fresh = [fix for fix in self._gps_queue if fix.time_s <= t_s + IMU_PERIOD_S]
+        self._gps_queue.clear()
+        self._gps_queue.extend(fresh)
+        self.origin = (
+            NedOrigin(fresh[0].lat_deg, fresh[0].lon_deg, fresh[0].alt_m) if fresh else None
+        )
+
+    def _gate_gps(self, gps: np.ndarray) -> np.ndarray | None:
+        """Reject a fix far outside the estimate's and the receiver's uncertainty."""
+        assert self.estimator is not None
+        nav = self.estimator.navigation()
+        noise = self.config.noise
+        var = nav.position_sigma_m**2 + np.array(
+            [noise.gps_horizontal_m**2, noise.gps_horizontal_m**2, noise.gps_vertical_m**2]
+        )
+        d2 = float(np.sum((gps[:3] - nav.position_ned_m) ** 2 / var))
+        if (
+            d2 <= self.config.gps_gate_chi2
+            or self._gps_rejections >= self.config.gps_max_rejections
+        ):
+            if self._gps_rejections >= self.config.gps_max_rejections:
+                self.counters.realignments += 1
+                self.estimator = None  # the estimate, not the receiver, is what went wrong
+            self._gps_rejections = 0
+            return gps
+        self._gps_rejections += 1
+        self.counters.rejected_gps += 1
+        return None
 
     def _align(self, t_s: float, imu: np.ndarray, gps: np.ndarray) -> None:
         assert self.origin is not None and self._controls is not None
@@ -229,7 +296,14 @@ class EstimatorPipeline:
         self.counters.steps += 1
         nav = self.estimator.navigation()
         lat, lon, alt = ned_to_geodetic(nav.position_ned_m, self.origin)
-        events = self.detector.update(t_s, est.mode_probabilities)
+        stale = self._actuator_s is None or t_s - self._actuator_s > self.config.actuator_timeout_s
+        if stale:
+            # the model's controls are old: its predictions (and so the modes' odds) are not
+            # to be trusted; hold decisions until servo outputs arrive again
+            self.counters.stale_actuator_steps += 1
+            events = []
+        else:
+            events = self.detector.update(t_s, est.mode_probabilities)
         return EstimateOutput(
             t_s,
             nav,

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from immukf_sitl.errors import UserError
 from immukf_sitl.mavlink.serve import add_filter_arguments, pipeline_from_args
 from immukf_sitl.pipeline import EstimateOutput, EstimatorPipeline
 from immukf_sitl.report import (
@@ -128,7 +129,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def _main(args: argparse.Namespace) -> int:
     pipeline = pipeline_from_args(args)
+    if args.plot and not Path(args.plot).resolve().parent.is_dir():
+        raise UserError(f"--plot {args.plot}: no such directory")
     log = read_flight_log(args.tlog)
+    n_imu = sum(isinstance(s, ImuSample) for s in log.stream)
+    if n_imu == 0:
+        raise UserError(
+            f"{args.tlog}: no HIGHRES_IMU in it ({log.bad_records} bad records): not a flight tlog"
+        )
     print(f"replay: {args.tlog}: {len(log.stream)} samples", file=sys.stderr)
     result = replay(log, pipeline, progress=True)
     name = log.scenario or Path(args.tlog).stem

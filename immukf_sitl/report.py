@@ -52,6 +52,11 @@ class EstimateTrack:
     lat_lon_alt: np.ndarray
 
 
+def _ms(t_s: float | None) -> float | None:
+    """Times in the summary, to the millisecond (they come from a 100 Hz clock)."""
+    return None if t_s is None else round(float(t_s), 3)
+
+
 def _active_mode(faults: Sequence[FaultSpec], t_s: float) -> FaultMode:
     channels = {c for f in faults if f.active(t_s) for c in f.channels}
     return FaultMode.from_channels(channels)
@@ -134,9 +139,9 @@ def summarize(
                 "kind": fault.kind,
                 "t_s": fault.t_s,
                 "mode": mode,
-                "observable_t_s": observable,
-                "detected_t_s": None if first is None else first.t_s,
-                "detection_delay_s": delay,
+                "observable_t_s": _ms(observable),
+                "detected_t_s": None if first is None else _ms(first.t_s),
+                "detection_delay_s": _ms(delay),
             }
         )
     false_alarms = [e for e in detections if e.mode != _active_mode(faults, e.t_s).name]
@@ -144,7 +149,7 @@ def summarize(
         "scenario": scenario_name,
         "faults": fault_rows,
         "detections": [
-            {"mode": e.mode, "t_s": e.t_s, "probability": e.probability} for e in detections
+            {"mode": e.mode, "t_s": _ms(e.t_s), "probability": e.probability} for e in detections
         ],
         "clearings": [
             {"mode": e.mode, "t_s": e.t_s, "probability": e.probability}

@@ -41,6 +41,8 @@ from immukf_sitl.tlog import read_estimator_log, read_flight_log, read_records
 
 #: How long serve (which compiles its kernels first) and proxy may take to bind their ports.
 READY_TIMEOUT_S = 120.0
+#: If run itself dies, its serve exits once input has stopped this long (a backstop).
+ORPHAN_IDLE_EXIT_S = 30.0
 #: The sim's lock-step patience: generous, since run watches its children itself.
 ACK_TIMEOUT_S = 60.0
 
@@ -225,13 +227,16 @@ def run_scenario(
     echo = args.verbose
     serve_argv = ["serve", "--in", f"udpin:127.0.0.1:{p_est}", "--out",
                   f"udpout:127.0.0.1:{p_run}", "--tlog", str(est_tlog), "--json",
-                  "--stats-interval", "0", *_filter_argv(args)]  # fmt: skip
+                  "--stats-interval", "0", "--idle-exit", str(ORPHAN_IDLE_EXIT_S),
+                  *_filter_argv(args)]  # fmt: skip
     for gcs in args.gcs or []:
         serve_argv += ["--out", gcs]
     sim_argv = ["sim", scenario_path, "--out", f"udpout:127.0.0.1:{p_proxy}",
                 "--tlog", str(sim_tlog), "--json", "--ack-timeout", str(ACK_TIMEOUT_S)]  # fmt: skip
     if args.realtime:
-        sim_argv += ["--realtime"] + (["--speed", str(args.speed)] if args.speed else [])
+        sim_argv += ["--realtime"] + (
+            ["--speed", str(args.speed)] if args.speed is not None else []
+        )
     if args.duration:
         sim_argv += ["--duration", str(args.duration)]
     duration_s = args.duration or scenario.duration_s
@@ -379,13 +384,27 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.set_defaults(handler=_main, variant="imm")
 
 
+def _terminate(signum: int, frame: object) -> None:
+    """SIGTERM behaves like Ctrl-C, so that run's cleanup stops its children."""
+    raise KeyboardInterrupt
+
+
 def _main(args: argparse.Namespace) -> int:
+    signal.signal(signal.SIGTERM, _terminate)
     scenario = load_scenario(args.scenario)
+    if args.speed is not None and (not args.realtime or not 0.0 < args.speed <= 100.0):
+        raise UserError("--speed: expected a factor in (0, 100], with --realtime")
     if args.duration is not None and not 1.0 <= args.duration <= scenario.duration_s:
         raise UserError(f"--duration: expected 1..{scenario.duration_s} s, got {args.duration}")
     if args.truth_hz is not None and not 0.0 < args.truth_hz <= 100.0:
         raise UserError(f"--truth-hz: expected a rate in (0, 100], got {args.truth_hz}")
-    out_dir = Path(args.out) if args.out else Path("out") / scenario.name
+    out_dir = Path(args.out) if args.out else Path("out") / Path(scenario.name).name
+    if out_dir.exists() and not out_dir.is_dir():
+        raise UserError(f"--out {out_dir}: exists and is not a directory")
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise UserError(f"--out {out_dir}: cannot create: {exc.strerror}") from None
     duration_s = args.duration or scenario.duration_s
     print(f"run: {scenario.name} ({duration_s:g} s) -> {out_dir}", file=sys.stderr)
     summary = run_scenario(scenario, args.scenario, out_dir, args)

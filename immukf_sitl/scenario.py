@@ -261,10 +261,8 @@ class _Reader:
             self.fail(key, "a list of 3 numbers", value)
         return (float(value[0]), float(value[1]), float(value[2]))
 
-    def child(self, key: str, default: Any = ...) -> _Reader | None:
+    def child(self, key: str, default: Any = ...) -> _Reader:
         value = self.raw(key, default)
-        if value is None:
-            return None
         return _Reader(self.path, self.name(key), value)
 
     def done(self) -> None:
@@ -392,8 +390,8 @@ def parse_scenario(data: Any, path: str = "<scenario>") -> Scenario:
         for i, item in enumerate(raw_manoeuvres)
     )
     expect = None
-    expect_r = r.child("expect", None)
-    if expect_r is not None:
+    if r.raw("expect", None) is not None:
+        expect_r = r.child("expect")
         detect = expect_r.string("detect", "none")
         try:
             FaultMode.from_name(detect)
@@ -423,6 +421,8 @@ def load_scenario(path: str | Path) -> Scenario:
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError:
+        raise ScenarioError(f"{path}: not a text (UTF-8) file") from None
     except FileNotFoundError:
         raise ScenarioError(f"{path}: no such scenario file") from None
     except OSError as exc:

@@ -130,3 +130,23 @@ def test_a_missing_file_is_one_line(tmp_path):
     path = tmp_path / "nowhere.yaml"
     with pytest.raises(ScenarioError, match=re.escape(f"{path}: no such scenario file")):
         load_scenario(path)
+
+
+@pytest.mark.parametrize(
+    "extra, pattern",
+    [
+        ("start:\n", r"bad\.yaml: start: expected a mapping, got None"),
+        ("sensors:\n", r"bad\.yaml: sensors: expected a mapping, got None"),
+        ("sensors: {imu: null}\n", r"bad\.yaml: sensors\.imu: expected a mapping, got None"),
+    ],
+)
+def test_an_empty_block_is_one_line(tmp_path, extra, pattern):
+    with pytest.raises(ScenarioError, match=pattern):
+        load_scenario(write(tmp_path, MINIMAL + extra))
+
+
+def test_a_binary_file_is_one_line(tmp_path):
+    path = tmp_path / "bin.yaml"
+    path.write_bytes(b"\xff\xfe\x00binary")
+    with pytest.raises(ScenarioError, match=r"bin\.yaml: not a text \(UTF-8\) file"):
+        load_scenario(path)

@@ -65,6 +65,7 @@ def served():
                 frame[-3] ^= 0xFF
                 sim.write(bytes(frame))
                 sim.mav.send(codec.highres_imu_message(ImuSample(t, [math.nan, 0, 0], imu[3:])))
+                sim.mav.send(codec.highres_imu_message(ImuSample(t, [1e30, 0, 0], imu[3:])))
                 sim.mav.send(codec.highres_imu_message(ImuSample(t, imu[:3], imu[3:])))
             # lock-step: stay within 10 steps of the last acknowledgement
             while time.monotonic() < deadline:
@@ -127,7 +128,7 @@ def test_published_messages_and_rates(served):
 def test_junk_is_counted_not_fatal(served):
     summary, _, _, err = served
     assert summary["bad_packets"] >= 1
-    assert summary["decode_errors"] >= 1  # the NaN HIGHRES_IMU
+    assert summary["decode_errors"] >= 2  # the NaN and the 1e30 HIGHRES_IMU
     assert summary["counters"]["out_of_order"] >= 1  # the duplicate
     assert summary["received"].get("HIL_STATE_QUATERNION", 0) == 0
     assert summary["step_us"]["median"] < 10_000  # keeps up with 100 Hz

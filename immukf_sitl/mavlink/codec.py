@@ -16,6 +16,9 @@ from immukf_sitl.samples import ActuatorSample, GpsSample, ImuSample
 #: HIGHRES_IMU fields_updated bits of the six inertial channels (XACC..ZGYRO).
 IMU_FIELDS_BITS = 0x3F
 GPS_COG_UNKNOWN = 65535
+#: Beyond these a reading is not a measurement but a corrupt packet (16 g, 2000 deg/s).
+MAX_ACCEL_MPS2 = 16 * 9.80665
+MAX_RATE_RADPS = math.radians(2000.0)
 N_SERVO_CHANNELS = 16
 
 
@@ -49,6 +52,11 @@ def decode_highres_imu(msg: MavMessage) -> ImuSample:
     values = (msg.xacc, msg.yacc, msg.zacc, msg.xgyro, msg.ygyro, msg.zgyro)
     if not all(math.isfinite(v) for v in values):
         raise DecodeError("HIGHRES_IMU has a non-finite inertial field")
+    if (
+        max(abs(v) for v in values[:3]) > MAX_ACCEL_MPS2
+        or max(abs(v) for v in values[3:]) > MAX_RATE_RADPS
+    ):
+        raise DecodeError("HIGHRES_IMU value beyond any sensor's range")
     return ImuSample(msg.time_usec * 1e-6, values[:3], values[3:])
 
 

@@ -18,6 +18,7 @@ import json
 import math
 import select
 import signal
+import struct
 import sys
 import time
 from collections import Counter, deque
@@ -73,6 +74,7 @@ class ServiceStats:
     decode_errors: int = 0
     ignored: int = 0
     send_errors: int = 0
+    pack_errors: int = 0
     step_us: deque = field(default_factory=lambda: deque(maxlen=STATS_WINDOW))
     lag_us: deque = field(default_factory=lambda: deque(maxlen=STATS_WINDOW))
     events: list = field(default_factory=list)
@@ -135,6 +137,7 @@ class EstimatorService:
         self._clock_s = 0.0
         self._last_stats = time.monotonic()
         self._last_wall_heartbeat = 0.0
+        self._last_data_wall = 0.0
         self._last_output: EstimateOutput | None = None
         self._stop = False
 
@@ -175,6 +178,7 @@ class EstimatorService:
 
     def _on_imu(self, sample, msg: MavMessage, received_ns: int) -> None:
         out = self.pipeline.on_imu(sample)
+        self._last_data_wall = time.monotonic()
         if out is not None:
             self._publish(self.publisher.messages(out))
             self.stats.step_us.append(out.step_us)
@@ -200,7 +204,11 @@ class EstimatorService:
 
     def _publish(self, msgs: list[MavMessage]) -> None:
         for msg in msgs:
-            buf = msg.pack(self._mav)
+            try:
+                buf = msg.pack(self._mav)
+            except (struct.error, OverflowError, ValueError):
+                self.stats.pack_errors += 1  # a field out of its wire range: not published
+                continue
             for conn in self.outbound:
                 self._send(conn, buf)
             if self._tlog is not None:
@@ -214,8 +222,8 @@ class EstimatorService:
         readable, _, _ = select.select([self.inbound.port.fileno()], [], [], timeout_s)
         if not readable:
             return 0
+        received_ns = time.perf_counter_ns()  # lag counts from when input became readable
         while True:
-            received_ns = time.perf_counter_ns()
             msg = self.inbound.recv_msg()
             if msg is None:
                 break
@@ -234,8 +242,8 @@ class EstimatorService:
             if self.poll(0.2):
                 last_input = time.monotonic()
             now = time.monotonic()
-            if now - self._last_wall_heartbeat >= 1.0 and self._last_output is None:
-                self._publish([heartbeat()])  # before data flows, still visible to a GCS
+            if now - self._last_wall_heartbeat >= 1.0 and now - self._last_data_wall > 1.0:
+                self._publish([heartbeat()])  # no data flowing: still visible to a GCS
                 self._last_wall_heartbeat = now
             if self.stats_interval_s and now - self._last_stats >= self.stats_interval_s:
                 self._say(self.stats_line())
@@ -263,6 +271,8 @@ class EstimatorService:
             f"p99 {fmt(step['p99'])} us lag p99 {fmt(lag['p99'])} us "
             f"dropped={c.out_of_order} gaps={c.gap_steps} bad={self.stats.bad_packets} "
             f"decode_err={self.stats.decode_errors} ignored={self.stats.ignored} "
+            f"send_err={self.stats.send_errors + self.stats.pack_errors} "
+            f"realigned={c.realignments} restarts={c.restarts} "
             f"fault={mode.name if mode else 'none'}"
         )
 
@@ -279,6 +289,7 @@ class EstimatorService:
             "decode_errors": self.stats.decode_errors,
             "ignored": self.stats.ignored,
             "send_errors": self.stats.send_errors,
+            "pack_errors": self.stats.pack_errors,
             **self.stats.timing(),
             "filter_diagnostics": est.imm.diagnostics.as_dict() if est is not None else None,
             "events": [_event_dict(e) for e in self.stats.events],

@@ -40,6 +40,19 @@ class ConnectionError_(UserError):
     """A connection string that cannot be opened (bad syntax, busy port)."""
 
 
+def _check_address(url: str) -> None:
+    """HOST:PORT of a network connection string: a resolvable host and a port in 0..65535 (0: any free port)."""
+    import socket
+
+    parts = url.split(":")
+    if len(parts) != 3 or not parts[2].isdigit() or not 0 <= int(parts[2]) < 65536:
+        raise ConnectionError_(f"connection {url!r}: expected SCHEME:HOST:PORT, port 0..65535")
+    try:
+        socket.getaddrinfo(parts[1], int(parts[2]), socket.AF_INET, socket.SOCK_DGRAM)
+    except OSError:
+        raise ConnectionError_(f"connection {url!r}: cannot resolve host {parts[1]!r}") from None
+
+
 def connect(
     url: str, source_system: int, source_component: int, *, input_: bool = True
 ) -> MavConnection:
@@ -51,6 +64,8 @@ def connect(
         With a one-line reason when the string is malformed or the port cannot be bound.
     """
     scheme = url.split(":", 1)[0]
+    if scheme in ("udpin", "udpout", "udp", "tcp", "tcpin"):
+        _check_address(url)
     if scheme not in ("udpin", "udpout", "udp", "tcp", "tcpin") and not url.endswith(".tlog"):
         raise ConnectionError_(
             f"connection {url!r}: expected udpin:HOST:PORT, udpout:HOST:PORT or a .tlog file"
@@ -65,7 +80,7 @@ def connect(
         )
     except OSError as exc:
         raise ConnectionError_(f"connection {url!r}: {exc.strerror or exc}") from None
-    except ValueError as exc:
+    except (ValueError, OverflowError) as exc:
         raise ConnectionError_(f"connection {url!r}: {exc}") from None
     conn.mav.robust_parsing = True
     return conn
