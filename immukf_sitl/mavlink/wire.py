@@ -41,7 +41,7 @@ class ConnectionError_(UserError):
 
 
 def _check_address(url: str) -> None:
-    """HOST:PORT of a network connection string: a resolvable host and a port in 0..65535 (0: any free port)."""
+    """Check HOST:PORT of a connection string: a resolvable host, a port in 0..65535."""
     import socket
 
     parts = url.split(":")
