@@ -58,7 +58,7 @@ def test_stale_servo_outputs_hold_decisions(fault_free):
         s for s in fault_free.stream if not (isinstance(s, ActuatorSample) and s.time_s > 20.0)
     ]
     result, summary = _run(fault_free, stream)
-    assert result.pipeline.counters.stale_actuator_steps > 2000
+    assert result.pipeline.counters.stale_actuator_steps > 1900  # 20 s without servo outputs
     assert summary["detections"] == []
 
 

@@ -2,8 +2,9 @@
 """Record the flight tlogs CI replays (tests/data/): fault-free and q gyro zeroed.
 
 Runs the real chain (``immukf-sitl run``: sim -> proxy -> serve over loopback UDP, lock-step)
-for 45 s of each scenario, with the truth thinned to 10 Hz so that both logs together stay
-under 2 MB, and copies each run's flight.tlog into tests/data/.
+for 40 s of each scenario (the q fault starts at 30 s and shows from about 30.6 s), truth at
+the full 100 Hz so that ``observable_t_s`` is exact, and copies each run's flight.tlog into
+tests/data/; both logs together stay under 2 MB.
 
 Usage: python tools/record_fixture_tlogs.py
 """
@@ -19,8 +20,7 @@ FIXTURES = {
     "fault_free.tlog": "scenarios/fault_free.yaml",
     "q_gyro_zeroed.tlog": "scenarios/q_gyro_zeroed.yaml",
 }
-DURATION_S = 45
-TRUTH_HZ = 10
+DURATION_S = 40
 
 
 def main() -> int:
@@ -31,7 +31,7 @@ def main() -> int:
         with tempfile.TemporaryDirectory() as tmp:
             subprocess.run(
                 [sys.executable, "-m", "immukf_sitl.cli", "run", str(ROOT / scenario),
-                 "--duration", str(DURATION_S), "--truth-hz", str(TRUTH_HZ), "--out", tmp],
+                 "--duration", str(DURATION_S), "--out", tmp],
                 check=True,
             )  # fmt: skip
             shutil.copy(Path(tmp) / "flight.tlog", data / name)
