@@ -258,7 +258,7 @@ class UnscentedKalmanFilter:
         diag = self.diagnostics
         proc = self.process
         model = measurement.model
-        z_mean, z_cov, z_res = unscented_transform(z_points, weights, model.angle_idx)
+        z_mean, z_cov, z_res = unscented_transform(z_points, weights, model.angle_idx)  # eq. (17)
         if self.noise_form == "additive":
             z_cov = z_cov + model.noise_cov
         z_cov = symmetrise(z_cov, diag)  # eq. (20)
@@ -270,7 +270,8 @@ class UnscentedKalmanFilter:
             innovation[:, idx] = wrap_angle(innovation[:, idx])
 
         z_chol = robust_cholesky(z_cov, diag)
-        # K = P_xz P_zz^-1 (eq. 24) by two triangular solves on the Cholesky factor, never inv
+        # K = P_xz P_zz^-1 (eq. 24) through the Cholesky factor L of P_zz, never inv:
+        # K z~ = (P_xz L^-T)(L^-1 z~) and K P_zz K' = (P_xz L^-T)(P_xz L^-T)'
         white_cross = np.linalg.solve(z_chol, cross_cov.transpose(0, 2, 1))  # L^-1 P_zx
         white_innov = np.linalg.solve(z_chol, innovation[:, :, None])[:, :, 0]  # L^-1 z~
         gain_white = white_cross.transpose(0, 2, 1)  # K L = P_xz L^-T
@@ -494,13 +495,17 @@ class UnscentedKalmanFilter:
             # the 2 nw points that perturb only w share x and v = 0 with the centre point:
             # f is evaluated once for them (an exact saving of 2 nw / (2 n_a + 1) of the work)
             distinct = _distinct_process_columns(nx + nv, n_aug)
-            moved = proc.f(t_s, points[:nx, :, distinct], u, points[nx : nx + nv, :, distinct])
+            moved = proc.f(
+                t_s, points[:nx, :, distinct], u, points[nx : nx + nv, :, distinct]
+            )  # eq. (14)
             x_points = np.empty((nx, batch, 2 * n_aug + 1))
             x_points[:, :, distinct] = moved
             x_points[:, :, _w_only_columns(nx + nv, n_aug)] = moved[:, :, :1]
         else:
             x_points = proc.f(t_s, points[:nx], u, points[nx : nx + nv])  # eq. (14)
-        pred_mean, pred_cov, x_res = unscented_transform(x_points, weights, proc.angle_idx)
+        pred_mean, pred_cov, x_res = unscented_transform(
+            x_points, weights, proc.angle_idx
+        )  # (16), (18)
         z_points = None
         if measurement is not None:
             z_points = measurement.model.g(t_s, x_points, u, points[nx + nv :])  # eq. (15)
