@@ -56,6 +56,9 @@ class PipelineConfig:
     max_gap_s: float = 1.0
     #: a fix whose position is this many sigma (squared, 3 d.o.f.) off the estimate is rejected
     gps_gate_chi2: float = 50.0
+    #: added in quadrature to the gate's sigmas: a receiver's slowly wandering error (several
+    #: metres, Gauss-Markov) must pass; a glitch of tens of metres or more must not
+    gps_gate_floor_m: float = 10.0
     #: after this many rejected fixes in a row the filter re-aligns on the next one
     gps_max_rejections: int = 5
     #: servo outputs older than this are stale: the filter steps on, decisions are held
@@ -247,8 +250,12 @@ class EstimatorPipeline:
         assert self.estimator is not None
         nav = self.estimator.navigation()
         noise = self.config.noise
-        var = nav.position_sigma_m**2 + np.array(
-            [noise.gps_horizontal_m**2, noise.gps_horizontal_m**2, noise.gps_vertical_m**2]
+        var = (
+            nav.position_sigma_m**2
+            + np.array(
+                [noise.gps_horizontal_m**2, noise.gps_horizontal_m**2, noise.gps_vertical_m**2]
+            )
+            + self.config.gps_gate_floor_m**2
         )
         d2 = float(np.sum((gps[:3] - nav.position_ned_m) ** 2 / var))
         if (

@@ -64,6 +64,14 @@ def test_fault_free_flight_declares_nothing(replays):
     assert result.pipeline.counters.out_of_order == 0
 
 
+def test_clean_flights_lose_no_fix_and_never_realign(replays):
+    # the GPS gate must pass a receiver's slowly wandering error (Gauss-Markov, metres)
+    for name in ("fault_free", "q_gyro_zeroed"):
+        counters = replays[name][1].pipeline.counters
+        assert counters.rejected_gps == 0 and counters.realignments == 0, name
+        assert counters.diverged == 0 and counters.stale_actuator_steps == 0, name
+
+
 def test_replay_command_prints_the_summary_as_json(tmp_path):
     png = tmp_path / "q.png"
     out = subprocess.run(

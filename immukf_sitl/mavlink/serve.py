@@ -222,8 +222,8 @@ class EstimatorService:
         readable, _, _ = select.select([self.inbound.port.fileno()], [], [], timeout_s)
         if not readable:
             return 0
-        received_ns = time.perf_counter_ns()  # lag counts from when input became readable
         while True:
+            received_ns = time.perf_counter_ns()
             msg = self.inbound.recv_msg()
             if msg is None:
                 break
