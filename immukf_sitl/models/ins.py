@@ -18,8 +18,8 @@ from typing import ClassVar
 
 import numpy as np
 
-from immukf_sitl.models.aero import ACCEL_NOISE_MPS2, GYRO_NOISE_RADPS
 from immukf_sitl.models.earth import NedOrigin, normal_gravity_mps2
+from immukf_sitl.models.sensors import IMU_PERIOD_S, ImuSpec
 
 __all__ = ["InsModel"]
 
@@ -50,11 +50,11 @@ class InsModel:
     """
 
     origin: NedOrigin = NedOrigin(0.0, 0.0, 0.0)
-    dt_s: float = 0.01
+    dt_s: float = IMU_PERIOD_S
     gravity_mps2: float | None = None
     gravity_gradient_ps2: float | None = None
-    accel_noise_mps2: float = ACCEL_NOISE_MPS2
-    gyro_noise_radps: float = GYRO_NOISE_RADPS
+    accel_noise_mps2: float = ImuSpec.accel_sigma_mps2
+    gyro_noise_radps: float = ImuSpec.gyro_sigma_radps
 
     nx: ClassVar[int] = 9
     nu: ClassVar[int] = 6

@@ -1,0 +1,148 @@
+"""What the sensors are: rates, noise and bias of the IMU and the GPS receiver, in one record.
+
+One source of truth for the scenario parser (the user's ``sensors:`` block), the simulation's
+sensor models (``sim/sensors.py``) and the filter's measurement noise ``R``. Defaults are those of
+Beard & McLain, *Small Unmanned Aircraft*, 2012, ch. 7 (DESIGN.md section 6):
+
+- accelerometers: white noise 0.0025 g = 0.0245 m/s^2; rate gyros 0.13 deg/s = 0.00227 rad/s;
+  both at the IMU rate (100 Hz);
+- GPS at 1 Hz: north/east and height errors as first-order Gauss-Markov processes
+  (B&M eq. 7.17) with driving sigmas 0.21 m and 0.40 m and ``k_GPS = 1/1100`` 1/s; ground speed
+  with white noise 0.05 m/s; course with white noise ``0.05 / Vg`` rad.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = [
+    "IMU_PERIOD_S",
+    "IMU_RATE_HZ",
+    "NOMINAL_GROUND_SPEED_MPS",
+    "GpsSpec",
+    "ImuSpec",
+    "SensorSpec",
+]
+
+#: Rate of the IMU, of the simulation step and of the filter step (Hz).
+IMU_RATE_HZ = 100.0
+#: One IMU period (s): the simulation's and the filter's time step.
+IMU_PERIOD_S = 1.0 / IMU_RATE_HZ
+#: Ground speed at which the filter evaluates the course sigma ``course_sigma_mps / Vg`` (m/s).
+NOMINAL_GROUND_SPEED_MPS = 20.0
+
+
+def _check_vector3(name: str, values: tuple[float, float, float]) -> None:
+    if len(values) != 3 or not all(math.isfinite(v) for v in values):
+        raise ValueError(f"{name}: expected 3 finite values, got {values!r}")
+
+
+@dataclass(frozen=True)
+class ImuSpec:
+    """Noise and bias of the inertial sensors, body FRD.
+
+    Attributes
+    ----------
+    accel_sigma_mps2 : float
+        White-noise standard deviation of each accelerometer (m/s^2).
+    gyro_sigma_radps : float
+        White-noise standard deviation of each rate gyro (rad/s).
+    accel_bias_mps2, gyro_bias_radps : tuple of float
+        Constant biases the simulation adds (m/s^2, rad/s). The filter is never told them.
+    """
+
+    accel_sigma_mps2: float = 0.0245
+    gyro_sigma_radps: float = 0.00227
+    accel_bias_mps2: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    gyro_bias_radps: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def __post_init__(self) -> None:
+        if not (self.accel_sigma_mps2 >= 0.0 and self.gyro_sigma_radps >= 0.0):
+            raise ValueError(
+                "accel_sigma_mps2, gyro_sigma_radps: expected values >= 0, got "
+                f"{self.accel_sigma_mps2}, {self.gyro_sigma_radps}"
+            )
+        _check_vector3("accel_bias_mps2", self.accel_bias_mps2)
+        _check_vector3("gyro_bias_radps", self.gyro_bias_radps)
+
+    @property
+    def sigmas(self) -> np.ndarray:
+        """White-noise sigmas of ``[f_x, f_y, f_z, p, q, r]`` (m/s^2, rad/s)."""
+        return np.array([self.accel_sigma_mps2] * 3 + [self.gyro_sigma_radps] * 3)
+
+    def noise_cov(self) -> np.ndarray:
+        """``R`` of the six IMU channels (6x6, diagonal)."""
+        return np.diag(self.sigmas**2)
+
+
+@dataclass(frozen=True)
+class GpsSpec:
+    """Rate and noise of the GPS receiver.
+
+    Attributes
+    ----------
+    rate_hz : float
+        Fix rate (Hz).
+    north_east_sigma_m, height_sigma_m : float
+        Driving-noise standard deviations of the Gauss-Markov position errors (m).
+    k_gps_per_s : float
+        Inverse time constant of the Gauss-Markov errors (1/s).
+    ground_speed_sigma_mps : float
+        White-noise standard deviation of the ground speed (m/s).
+    course_sigma_mps : float
+        Course noise numerator: the course sigma is this divided by the ground speed (rad).
+    """
+
+    rate_hz: float = 1.0
+    north_east_sigma_m: float = 0.21
+    height_sigma_m: float = 0.40
+    k_gps_per_s: float = 1.0 / 1100.0
+    ground_speed_sigma_mps: float = 0.05
+    course_sigma_mps: float = 0.05
+
+    def __post_init__(self) -> None:
+        if not self.rate_hz > 0.0:
+            raise ValueError(f"rate_hz: expected a value > 0, got {self.rate_hz}")
+        if not self.k_gps_per_s >= 0.0:
+            raise ValueError(f"k_gps_per_s: expected a value >= 0, got {self.k_gps_per_s}")
+        sigmas = (
+            self.north_east_sigma_m,
+            self.height_sigma_m,
+            self.ground_speed_sigma_mps,
+            self.course_sigma_mps,
+        )
+        if not all(s >= 0.0 for s in sigmas):
+            raise ValueError(f"GPS standard deviations: expected values >= 0, got {sigmas}")
+
+    @property
+    def period_s(self) -> float:
+        """Time between fixes (s)."""
+        return 1.0 / self.rate_hz
+
+    @property
+    def course_sigma_rad(self) -> float:
+        """Course sigma at :data:`NOMINAL_GROUND_SPEED_MPS` (rad)."""
+        return self.course_sigma_mps / NOMINAL_GROUND_SPEED_MPS
+
+    def noise_cov(self) -> np.ndarray:
+        """``R`` of ``[pN, pE, pD, ground speed, course]`` (5x5, diagonal, white noise)."""
+        return np.diag(
+            [
+                self.north_east_sigma_m**2,
+                self.north_east_sigma_m**2,
+                self.height_sigma_m**2,
+                self.ground_speed_sigma_mps**2,
+                self.course_sigma_rad**2,
+            ]
+        )
+
+
+@dataclass(frozen=True)
+class SensorSpec:
+    """The IMU and the GPS receiver: a scenario's ``sensors:`` block."""
+
+    imu: ImuSpec = field(default_factory=ImuSpec)
+    gps: GpsSpec = field(default_factory=GpsSpec)
