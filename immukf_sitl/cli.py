@@ -17,13 +17,13 @@ from immukf_sitl.models.params import AircraftParamsError
 
 #: Modules that provide subcommands, in ``--help`` order.
 SUBCOMMAND_MODULES: tuple[str, ...] = (
-    "immukf_sitl.run",
+    "immukf_sitl.experiments.run",
     "sim.emitter",
     "sim.fault_proxy",
     "immukf_sitl.mavlink.serve",
-    "immukf_sitl.replay",
+    "immukf_sitl.experiments.replay",
     "immukf_sitl.experiments.validate_model",
-    "immukf_sitl.bench",
+    "immukf_sitl.experiments.bench",
 )
 
 

@@ -10,7 +10,7 @@ Every ``time_usec`` is sim time. The sim speaks as system 1, component 1, with a
 a component-1 heartbeat with a vehicle type, without a flight stack to negotiate with).
 
 Truth never goes on the wire: with ``--tlog FILE`` the sim records a first STATUSTEXT
-``SCENARIO <name>`` (:func:`immukf_sitl.tlog.scenario_annotation`), every frame it sends, and
+``SCENARIO <name>`` (:func:`immukf_sitl.mavlink.flightlog.scenario_annotation`), every frame it sends, and
 one HIL_STATE_QUATERNION per step (true attitude quaternion, inertial body rates, position, NED
 velocity, airspeed, and the true specific force in ``xacc/yacc/zacc`` as mG) whose ``time_usec``
 is the step's sim time, right after the step's frames. Every record is stamped with its step's
@@ -53,6 +53,7 @@ from immukf_sitl.mavlink.codec import (
     servo_output_raw_message,
     usec,
 )
+from immukf_sitl.mavlink.flightlog import scenario_annotation
 from immukf_sitl.mavlink.tlog import TlogWriter
 from immukf_sitl.mavlink.wire import (
     ESTIMATOR_COMPONENT_ID,
@@ -68,7 +69,6 @@ from immukf_sitl.models.earth import isa_density_unchecked
 from immukf_sitl.models.params import Actuators
 from immukf_sitl.samples import ActuatorSample
 from immukf_sitl.scenario import load_scenario
-from immukf_sitl.tlog import scenario_annotation
 from sim.driver import DT_S
 from sim.flight import Flight, FlightRecord
 from sim.scenario_flight import flight_from_scenario

@@ -29,7 +29,7 @@ Several faults apply in file order, each to the output of the previous ones.
 With ``--tlog FILE`` the proxy records the stream exactly as it forwards it to the estimator
 (faults included), one record per frame stamped with the frame's sim time, after a first
 STATUSTEXT ``SCENARIO <name>`` and with a STATUSTEXT ``FAULT <kind> <channels> t=<s>`` at each
-fault's onset and ``FAULT END ...`` at its end (:mod:`immukf_sitl.tlog`), from the proxy's
+fault's onset and ``FAULT END ...`` at its end (:mod:`immukf_sitl.mavlink.flightlog`), from the proxy's
 component and never forwarded. Merged by record time with the sim's tlog (which holds the
 truth), it is the flight log that ``replay`` reads.
 """
@@ -52,6 +52,7 @@ import numpy as np
 from immukf_sitl.errors import UserError
 from immukf_sitl.estimation.fault_modes import IMU_CHANNELS
 from immukf_sitl.mavlink.codec import DecodeError, decode_highres_imu
+from immukf_sitl.mavlink.flightlog import fault_annotation, scenario_annotation
 from immukf_sitl.mavlink.tlog import TlogWriter
 from immukf_sitl.mavlink.wire import (
     PROXY_COMPONENT_ID,
@@ -64,7 +65,6 @@ from immukf_sitl.mavlink.wire import (
 )
 from immukf_sitl.samples import ImuSample
 from immukf_sitl.scenario import FaultSpec, ImuNoiseSpec, Scenario, load_scenario
-from immukf_sitl.tlog import fault_annotation, scenario_annotation
 
 __all__ = [
     "FAULT_STREAM_INDEX",

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from immukf_sitl.detection import DetectorConfig, FaultDetector
 from immukf_sitl.estimation import single_fault_modes
+from immukf_sitl.service.detection import DetectorConfig, FaultDetector
 
 MODES = single_fault_modes()
 

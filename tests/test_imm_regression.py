@@ -1,7 +1,7 @@
 """Regression fixture: the 7-mode aircraft IMM's outputs on a fixed flight do not drift.
 
 ``tests/data/imm_regression.npz`` holds what the numpy reference path produced on 250 steps of
-``immukf_sitl.bench.make_flight`` (seed 1: control doublets from trim, default sensor noise, GPS
+``immukf_sitl.experiments.bench.make_flight`` (seed 1: control doublets from trim, default sensor noise, GPS
 fixes at steps 100 and 200), in both noise forms: at every fifth step (the GPS steps among
 them) the combined mean and covariance diagonal, the mode probabilities, every mode's
 log-likelihood and NIS; the final mode-matched estimates; the safeguard counters. Both backends
@@ -21,10 +21,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from immukf_sitl.bench import ORIGIN, initial_cov, make_flight
+from immukf_sitl.experiments.bench import ORIGIN, initial_cov, make_flight
 from immukf_sitl.models.aero import AeroModel
 from immukf_sitl.models.params import load_aircraft_params
-from immukf_sitl.variants import build_aero_estimator
+from immukf_sitl.service.filters import build_aero_estimator
 
 FIXTURE = Path(__file__).parent / "data" / "imm_regression.npz"
 N_STEPS = 250

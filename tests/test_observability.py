@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from immukf_sitl.observability import (
+from immukf_sitl.experiments.observability import (
     channel_sigma,
     fault_deviation,
     fault_observable_time_s,

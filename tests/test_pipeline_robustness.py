@@ -6,11 +6,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from immukf_sitl.experiments.replay import ReplayResult, replay, summary_of
+from immukf_sitl.mavlink.flightlog import FlightLog, read_flight_log
 from immukf_sitl.models.params import load_aircraft_params
-from immukf_sitl.pipeline import EstimatorPipeline
-from immukf_sitl.replay import ReplayResult, replay, summary_of
 from immukf_sitl.samples import ActuatorSample, GpsSample, ImuSample
-from immukf_sitl.tlog import FlightLog, read_flight_log
+from immukf_sitl.service.pipeline import EstimatorPipeline
 
 DATA = Path(__file__).parent / "data"
 

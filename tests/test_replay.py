@@ -8,10 +8,10 @@ from pathlib import Path
 
 import pytest
 
+from immukf_sitl.experiments.replay import replay, summary_of
+from immukf_sitl.mavlink.flightlog import read_flight_log
 from immukf_sitl.models.params import load_aircraft_params
-from immukf_sitl.pipeline import EstimatorPipeline, PipelineConfig
-from immukf_sitl.replay import replay, summary_of
-from immukf_sitl.tlog import read_flight_log
+from immukf_sitl.service.pipeline import EstimatorPipeline, PipelineConfig
 
 DATA = Path(__file__).parent / "data"
 

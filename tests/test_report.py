@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from immukf_sitl.report import EstimateTrack, EventRecord, estimation_errors, summarize
+from immukf_sitl.experiments.report import EstimateTrack, EventRecord, estimation_errors, summarize
+from immukf_sitl.mavlink.flightlog import TruthSample
 from immukf_sitl.scenario import ExpectSpec, FaultSpec
-from immukf_sitl.tlog import TruthSample
 
 DT = 0.01
 

@@ -7,10 +7,10 @@ import time
 import numpy as np
 import pytest
 
+from immukf_sitl.experiments.run import free_udp_ports, spawn_cli
 from immukf_sitl.mavlink import codec
 from immukf_sitl.mavlink.wire import connect, mavlink
 from immukf_sitl.models.params import load_aircraft_params
-from immukf_sitl.run import free_udp_ports, spawn_cli
 from immukf_sitl.samples import ActuatorSample, GpsSample, ImuSample
 from sim.flight import fly
 from sim.flight_plans import default_flight_plan

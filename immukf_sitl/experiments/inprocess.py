@@ -2,7 +2,7 @@
 
 The same objects the three UDP processes wrap (DESIGN.md section 1): the JSBSim
 :class:`~sim.flight.Flight`, the proxy's :class:`~sim.fault_proxy.FaultInjector` and the
-:class:`~immukf_sitl.pipeline.EstimatorPipeline`, stepped together. Experiments and tuning
+:class:`~immukf_sitl.service.pipeline.EstimatorPipeline`, stepped together. Experiments and tuning
 studies use it; the summary is the one ``run`` and ``replay`` print.
 
 The stream differs from the wire only by what the wire quantises: the estimator here gets the
@@ -16,12 +16,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from immukf_sitl.experiments.report import EstimateTrack, EventRecord, summarize
+from immukf_sitl.mavlink.flightlog import TruthSample
 from immukf_sitl.models.params import load_aircraft_params
-from immukf_sitl.pipeline import EstimateOutput, EstimatorPipeline, PipelineConfig
-from immukf_sitl.report import EstimateTrack, EventRecord, summarize
 from immukf_sitl.samples import ActuatorSample
 from immukf_sitl.scenario import Scenario
-from immukf_sitl.tlog import TruthSample
+from immukf_sitl.service.pipeline import EstimateOutput, EstimatorPipeline, PipelineConfig
 from sim.driver import TruthState
 from sim.fault_proxy import FaultInjector
 from sim.scenario_flight import flight_from_scenario

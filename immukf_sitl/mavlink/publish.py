@@ -3,7 +3,7 @@
 Builds ATTITUDE, ATTITUDE_QUATERNION, GLOBAL_POSITION_INT, NAMED_VALUE_FLOAT (one per mode
 probability), NAMED_VALUE_INT ``IMM_FAULT`` (the declared fault mode's bits at each detection or
 clearing, time-stamped, so a tlog reader sees when it happened) and STATUSTEXT from an
-:class:`~immukf_sitl.pipeline.EstimateOutput`, at configurable rates of the IMU clock.
+:class:`~immukf_sitl.service.pipeline.EstimateOutput`, at configurable rates of the IMU clock.
 """
 
 from __future__ import annotations
@@ -13,11 +13,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from immukf_sitl.detection import DetectionEvent
 from immukf_sitl.estimation.fault_modes import FaultMode
 from immukf_sitl.mavlink.codec import euler_to_quaternion
 from immukf_sitl.mavlink.wire import MavMessage, mavlink
-from immukf_sitl.pipeline import EstimateOutput
+from immukf_sitl.service.detection import DetectionEvent
+from immukf_sitl.service.pipeline import EstimateOutput
 
 _CHANNEL_TAGS = {"x": "AX", "y": "AY", "z": "AZ", "p": "P", "q": "Q", "r": "R"}
 FAULT_EVENT_NAME = "IMM_FAULT"

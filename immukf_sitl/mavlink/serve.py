@@ -1,7 +1,7 @@
 """``immukf-sitl serve``: the estimator service on MAVLink.
 
 Consumes HIGHRES_IMU, GPS_RAW_INT and SERVO_OUTPUT_RAW from ``--in``, runs the IMM-UKF
-(:class:`~immukf_sitl.pipeline.EstimatorPipeline`) once per IMU sample and publishes the fused
+(:class:`~immukf_sitl.service.pipeline.EstimatorPipeline`) once per IMU sample and publishes the fused
 state, the mode probabilities and detection events to every ``--out`` (a ground station). On its
 input link it answers each HIGHRES_IMU with a SYSTEM_TIME whose ``time_boot_ms`` is that
 sample's time: the lock-step acknowledgement the sim waits for.
@@ -27,7 +27,6 @@ from typing import TextIO
 
 import numpy as np
 
-from immukf_sitl.detection import DetectionEvent, DetectorConfig
 from immukf_sitl.errors import UserError
 from immukf_sitl.estimation.fault_modes import FaultMode
 from immukf_sitl.mavlink import codec
@@ -43,8 +42,9 @@ from immukf_sitl.mavlink.wire import (
     mavlink,
 )
 from immukf_sitl.models.params import load_aircraft_params
-from immukf_sitl.pipeline import EstimateOutput, EstimatorPipeline, PipelineConfig
-from immukf_sitl.variants import VARIANTS, FilterTuning
+from immukf_sitl.service.detection import DetectionEvent, DetectorConfig
+from immukf_sitl.service.filters import VARIANTS, FilterTuning
+from immukf_sitl.service.pipeline import EstimateOutput, EstimatorPipeline, PipelineConfig
 
 HELP = """\
 Run the IMM-UKF estimator on a MAVLink stream and publish its results.

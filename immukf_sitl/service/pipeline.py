@@ -26,12 +26,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from immukf_sitl.detection import DetectionEvent, DetectorConfig, FaultDetector
 from immukf_sitl.estimation.fault_modes import FaultMode
 from immukf_sitl.models.earth import NedOrigin, geodetic_to_ned, ned_to_geodetic
 from immukf_sitl.models.params import AircraftParams
 from immukf_sitl.samples import ActuatorSample, GpsSample, ImuSample
-from immukf_sitl.variants import (
+from immukf_sitl.service.detection import DetectionEvent, DetectorConfig, FaultDetector
+from immukf_sitl.service.filters import (
     Estimator,
     FilterTuning,
     NavSolution,
@@ -146,7 +146,7 @@ class EstimatorPipeline:
         does it before it reports ready, so that its first real sample is not late.
         """
         from immukf_sitl.models.aero import AeroModel
-        from immukf_sitl.variants import align
+        from immukf_sitl.service.filters import align
 
         origin = NedOrigin(0.0, 0.0, 100.0)
         x0, u0 = AeroModel(self.params, origin).trim(25.0)

@@ -26,18 +26,18 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from immukf_sitl.errors import UserError
-from immukf_sitl.mavlink.serve import add_filter_arguments
-from immukf_sitl.mavlink.tlog import TlogWriter
-from immukf_sitl.mavlink.wire import connect
-from immukf_sitl.report import (
+from immukf_sitl.experiments.report import (
     EstimateTrack,
     EventRecord,
     human_summary,
     plot_summary,
     summarize,
 )
+from immukf_sitl.mavlink.flightlog import read_estimator_log, read_flight_log, read_records
+from immukf_sitl.mavlink.serve import add_filter_arguments
+from immukf_sitl.mavlink.tlog import TlogWriter
+from immukf_sitl.mavlink.wire import connect
 from immukf_sitl.scenario import Scenario, load_scenario
-from immukf_sitl.tlog import read_estimator_log, read_flight_log, read_records
 
 #: How long serve (which compiles its kernels first) and proxy may take to bind their ports.
 READY_TIMEOUT_S = 120.0

@@ -1,6 +1,6 @@
 """``immukf-sitl replay TLOG``: the estimator over a recorded flight log, as fast as it can.
 
-Feeds the sensor stream of a flight tlog (see :mod:`immukf_sitl.tlog`) through the same
+Feeds the sensor stream of a flight tlog (see :mod:`immukf_sitl.mavlink.flightlog`) through the same
 pipeline ``serve`` runs, in recorded order, and prints the same summary as ``run``: faults (from
 the fault proxy's annotations), detections, false alarms, and, when the log holds the sim's
 truth, estimation errors.
@@ -17,17 +17,17 @@ from pathlib import Path
 import numpy as np
 
 from immukf_sitl.errors import UserError
-from immukf_sitl.mavlink.serve import add_filter_arguments, pipeline_from_args
-from immukf_sitl.pipeline import EstimateOutput, EstimatorPipeline
-from immukf_sitl.report import (
+from immukf_sitl.experiments.report import (
     EstimateTrack,
     EventRecord,
     human_summary,
     plot_summary,
     summarize,
 )
+from immukf_sitl.mavlink.flightlog import FlightLog, read_flight_log
+from immukf_sitl.mavlink.serve import add_filter_arguments, pipeline_from_args
 from immukf_sitl.samples import ActuatorSample, GpsSample, ImuSample
-from immukf_sitl.tlog import FlightLog, read_flight_log
+from immukf_sitl.service.pipeline import EstimateOutput, EstimatorPipeline
 
 
 @dataclass

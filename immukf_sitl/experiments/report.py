@@ -26,10 +26,10 @@ import numpy as np
 
 from immukf_sitl.estimation.angles import wrap_angle
 from immukf_sitl.estimation.fault_modes import FaultMode
+from immukf_sitl.experiments.observability import fault_observable_time_s
+from immukf_sitl.mavlink.flightlog import TruthSample
 from immukf_sitl.models.earth import NedOrigin, geodetic_to_ned
-from immukf_sitl.observability import fault_observable_time_s
 from immukf_sitl.scenario import ExpectSpec, FaultSpec, ImuNoiseSpec
-from immukf_sitl.tlog import TruthSample
 
 
 @dataclass(frozen=True)

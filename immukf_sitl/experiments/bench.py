@@ -23,7 +23,7 @@ import numpy as np
 from immukf_sitl.models.aero import AeroModel
 from immukf_sitl.models.earth import NedOrigin
 from immukf_sitl.models.params import load_aircraft_params
-from immukf_sitl.variants import SensorNoise, build_aero_estimator
+from immukf_sitl.service.filters import SensorNoise, build_aero_estimator
 
 GPS_EVERY_STEPS = 100
 ORIGIN = NedOrigin(-33.87, 151.21, 100.0)
@@ -105,7 +105,7 @@ def time_filterpy(model: AeroModel, data: BenchData, n_steps: int) -> dict:
     from filterpy.kalman import IMMEstimator, MerweScaledSigmaPoints, UnscentedKalmanFilter
 
     from immukf_sitl.estimation import single_fault_modes, sticky_transition
-    from immukf_sitl.variants import aero_process_model
+    from immukf_sitl.service.filters import aero_process_model
 
     noise = SensorNoise()
     process = aero_process_model(model, noise)
