@@ -136,11 +136,6 @@ class Geometry:
             self.imu_position_m,
         )
 
-    @property
-    def aspect_ratio(self) -> float:
-        """Wing aspect ratio b^2 / S."""
-        return self.b_m**2 / self.S_m2
-
 
 @dataclass(frozen=True)
 class AeroCoefficients:
