@@ -51,6 +51,7 @@ import yaml
 
 from immukf_sitl.errors import UserError
 from immukf_sitl.estimation.fault_modes import IMU_CHANNELS, FaultMode
+from immukf_sitl.models.sensors import GpsSpec, ImuSpec, SensorSpec
 
 FAULT_KINDS = ("zero", "stuck", "bias", "drift")
 MANOEUVRE_KINDS = ("elevator_doublet", "aileron_doublet", "rudder_doublet")
@@ -72,51 +73,60 @@ class StartSpec:
 
 
 @dataclass(frozen=True)
-class WaypointSpec:
-    """One waypoint: NED north/east about the start (m), WGS-84 height (m), airspeed (m/s)."""
+class Waypoint:
+    """One point of a flight plan.
+
+    Attributes
+    ----------
+    north_m, east_m : float
+        Horizontal position in the NED frame of the simulation's origin (the start) (m).
+    alt_m : float
+        Height above the WGS-84 ellipsoid to hold on the leg towards this waypoint (m).
+    airspeed_mps : float
+        Airspeed to hold on the leg towards this waypoint (m/s).
+    """
 
     north_m: float
     east_m: float
     alt_m: float
     airspeed_mps: float = 25.0
 
+    def __post_init__(self) -> None:
+        values = (self.north_m, self.east_m, self.alt_m, self.airspeed_mps)
+        if not all(math.isfinite(v) for v in values):
+            raise ValueError(f"waypoint: expected finite values, got {values}")
+        if not 12.0 <= self.airspeed_mps <= 40.0:
+            raise ValueError(f"airspeed_mps: expected 12..40 m/s, got {self.airspeed_mps}")
+
 
 @dataclass(frozen=True)
-class FlightPlanSpec:
-    """Waypoints flown in order."""
+class FlightPlan:
+    """Waypoints flown in order by straight legs (the autopilot's plan).
 
-    waypoints: tuple[WaypointSpec, ...]
-    loop: bool = True
+    Attributes
+    ----------
+    waypoints : tuple of Waypoint
+        At least one waypoint. The first leg starts where the aircraft is when the autopilot
+        starts.
+    acceptance_radius_m : float
+        A waypoint is reached within this horizontal distance (or when its perpendicular plane
+        is crossed).
+    loop : bool
+        After the last waypoint, fly to the first again (``True``) or hold the last leg's line
+        (``False``).
+    """
+
+    waypoints: tuple[Waypoint, ...]
     acceptance_radius_m: float = 15.0
+    loop: bool = False
 
-
-@dataclass(frozen=True)
-class ImuNoiseSpec:
-    """IMU noise (defaults: Beard & McLain ch. 7)."""
-
-    accel_sigma_mps2: float = 0.0245
-    gyro_sigma_radps: float = 0.00227
-    accel_bias_mps2: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    gyro_bias_radps: tuple[float, float, float] = (0.0, 0.0, 0.0)
-
-
-@dataclass(frozen=True)
-class GpsNoiseSpec:
-    """GPS rate and noise (defaults: Beard & McLain ch. 7)."""
-
-    rate_hz: float = 1.0
-    north_east_sigma_m: float = 0.21
-    height_sigma_m: float = 0.40
-    ground_speed_sigma_mps: float = 0.05
-    course_sigma_mps: float = 0.05
-
-
-@dataclass(frozen=True)
-class SensorsSpec:
-    """Both sensors."""
-
-    imu: ImuNoiseSpec = field(default_factory=ImuNoiseSpec)
-    gps: GpsNoiseSpec = field(default_factory=GpsNoiseSpec)
+    def __post_init__(self) -> None:
+        if len(self.waypoints) == 0:
+            raise ValueError("waypoints: expected at least one waypoint")
+        if not self.acceptance_radius_m > 0.0:
+            raise ValueError(
+                f"acceptance_radius_m: expected a value > 0, got {self.acceptance_radius_m}"
+            )
 
 
 @dataclass(frozen=True)
@@ -176,9 +186,9 @@ class Scenario:
     name: str
     duration_s: float
     seed: int
-    flight_plan: FlightPlanSpec
+    flight_plan: FlightPlan
     start: StartSpec = field(default_factory=StartSpec)
-    sensors: SensorsSpec = field(default_factory=SensorsSpec)
+    sensors: SensorSpec = field(default_factory=SensorSpec)
     faults: tuple[FaultSpec, ...] = ()
     manoeuvres: tuple[ManoeuvreSpec, ...] = ()
     expect: ExpectSpec | None = None
@@ -274,9 +284,9 @@ class _Reader:
             )
 
 
-def _waypoint(path: str, where: str, data: Any) -> WaypointSpec:
+def _waypoint(path: str, where: str, data: Any) -> Waypoint:
     r = _Reader(path, where, data)
-    wp = WaypointSpec(
+    wp = Waypoint(
         north_m=r.number("north_m"),
         east_m=r.number("east_m"),
         alt_m=r.number("alt_m", lo=-400.0, hi=10000.0),
@@ -286,14 +296,14 @@ def _waypoint(path: str, where: str, data: Any) -> WaypointSpec:
     return wp
 
 
-def _flight_plan(r: _Reader) -> FlightPlanSpec:
+def _flight_plan(r: _Reader) -> FlightPlan:
     raw = r.raw("waypoints")
     if not isinstance(raw, list) or not raw:
         r.fail("waypoints", "a non-empty list of waypoints", raw)
     waypoints = tuple(
         _waypoint(r.path, f"{r.name('waypoints')}[{i}]", item) for i, item in enumerate(raw)
     )
-    plan = FlightPlanSpec(
+    plan = FlightPlan(
         waypoints=waypoints,
         loop=r.boolean("loop", True),
         acceptance_radius_m=r.number("acceptance_radius_m", 15.0, lo=0.0, lo_open=True),
@@ -342,6 +352,33 @@ def _manoeuvre(path: str, where: str, data: Any, duration_s: float) -> Manoeuvre
     return spec
 
 
+def _sensors(r: _Reader) -> SensorSpec:
+    """The ``sensors:`` block; every default is that of :class:`SensorSpec`."""
+    imu_r = r.child("imu", {})
+    d_imu = ImuSpec()
+    imu = ImuSpec(
+        accel_sigma_mps2=imu_r.number("accel_sigma_mps2", d_imu.accel_sigma_mps2, lo=0.0),
+        gyro_sigma_radps=imu_r.number("gyro_sigma_radps", d_imu.gyro_sigma_radps, lo=0.0),
+        accel_bias_mps2=imu_r.vector3("accel_bias_mps2", d_imu.accel_bias_mps2),
+        gyro_bias_radps=imu_r.vector3("gyro_bias_radps", d_imu.gyro_bias_radps),
+    )
+    imu_r.done()
+    gps_r = r.child("gps", {})
+    d_gps = GpsSpec()
+    gps = GpsSpec(
+        rate_hz=gps_r.number("rate_hz", d_gps.rate_hz, lo=0.0, hi=100.0, lo_open=True),
+        north_east_sigma_m=gps_r.number("north_east_sigma_m", d_gps.north_east_sigma_m, lo=0.0),
+        height_sigma_m=gps_r.number("height_sigma_m", d_gps.height_sigma_m, lo=0.0),
+        ground_speed_sigma_mps=gps_r.number(
+            "ground_speed_sigma_mps", d_gps.ground_speed_sigma_mps, lo=0.0
+        ),
+        course_sigma_mps=gps_r.number("course_sigma_mps", d_gps.course_sigma_mps, lo=0.0),
+    )
+    gps_r.done()
+    r.done()
+    return SensorSpec(imu=imu, gps=gps)
+
+
 def parse_scenario(data: Any, path: str = "<scenario>") -> Scenario:
     """Validate parsed YAML into a :class:`Scenario`; raises :class:`ScenarioError`."""
     r = _Reader(path, "", data)
@@ -355,25 +392,7 @@ def parse_scenario(data: Any, path: str = "<scenario>") -> Scenario:
         heading_deg=start_r.number("heading_deg", 0.0, lo=-360.0, hi=360.0),
     )
     start_r.done()
-    sensors_r = r.child("sensors", {})
-    imu_r = sensors_r.child("imu", {})
-    imu = ImuNoiseSpec(
-        accel_sigma_mps2=imu_r.number("accel_sigma_mps2", 0.0245, lo=0.0),
-        gyro_sigma_radps=imu_r.number("gyro_sigma_radps", 0.00227, lo=0.0),
-        accel_bias_mps2=imu_r.vector3("accel_bias_mps2", (0.0, 0.0, 0.0)),
-        gyro_bias_radps=imu_r.vector3("gyro_bias_radps", (0.0, 0.0, 0.0)),
-    )
-    imu_r.done()
-    gps_r = sensors_r.child("gps", {})
-    gps = GpsNoiseSpec(
-        rate_hz=gps_r.number("rate_hz", 1.0, lo=0.0, hi=100.0, lo_open=True),
-        north_east_sigma_m=gps_r.number("north_east_sigma_m", 0.21, lo=0.0),
-        height_sigma_m=gps_r.number("height_sigma_m", 0.40, lo=0.0),
-        ground_speed_sigma_mps=gps_r.number("ground_speed_sigma_mps", 0.05, lo=0.0),
-        course_sigma_mps=gps_r.number("course_sigma_mps", 0.05, lo=0.0),
-    )
-    gps_r.done()
-    sensors_r.done()
+    sensors = _sensors(r.child("sensors", {}))
     raw_faults = r.raw("faults", [])
     if raw_faults is None:
         raw_faults = []
@@ -406,7 +425,7 @@ def parse_scenario(data: Any, path: str = "<scenario>") -> Scenario:
         seed=r.integer("seed"),
         start=start,
         flight_plan=_flight_plan(r.child("flight_plan")),
-        sensors=SensorsSpec(imu=imu, gps=gps),
+        sensors=sensors,
         faults=faults,
         manoeuvres=manoeuvres,
         expect=expect,

@@ -30,16 +30,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from sim.driver import TrimResult, TruthState
+from immukf_sitl.scenario import FlightPlan
+from sim.truth import TrimResult, TruthState
 
 __all__ = [
     "Autopilot",
     "AutopilotGains",
     "AutopilotStatus",
-    "FlightPlan",
     "NavigationState",
     "PidController",
-    "Waypoint",
     "wrap_angle_rad",
 ]
 
@@ -61,63 +60,6 @@ def _rotation_nb(phi: float, theta: float, psi: float) -> np.ndarray:
             [-st, sf * ct, cf * ct],
         ]
     )
-
-
-@dataclass(frozen=True)
-class Waypoint:
-    """One point of a flight plan.
-
-    Attributes
-    ----------
-    north_m, east_m : float
-        Horizontal position in the NED frame of the simulation's origin (m).
-    alt_m : float
-        Height above the WGS-84 ellipsoid to hold on the leg towards this waypoint (m).
-    airspeed_mps : float
-        Airspeed to hold on the leg towards this waypoint (m/s).
-    """
-
-    north_m: float
-    east_m: float
-    alt_m: float
-    airspeed_mps: float = 25.0
-
-    def __post_init__(self) -> None:
-        values = (self.north_m, self.east_m, self.alt_m, self.airspeed_mps)
-        if not all(math.isfinite(v) for v in values):
-            raise ValueError(f"waypoint: expected finite values, got {values}")
-        if not 12.0 <= self.airspeed_mps <= 40.0:
-            raise ValueError(f"airspeed_mps: expected 12..40 m/s, got {self.airspeed_mps}")
-
-
-@dataclass(frozen=True)
-class FlightPlan:
-    """Waypoints flown in order by straight legs.
-
-    Attributes
-    ----------
-    waypoints : tuple of Waypoint
-        At least one waypoint. The first leg starts at the aircraft's position when the
-        autopilot starts.
-    acceptance_radius_m : float
-        A waypoint is reached within this horizontal distance (or when its perpendicular plane
-        is crossed).
-    loop : bool
-        After the last waypoint, fly to the first again (``True``) or hold the last leg's line
-        (``False``).
-    """
-
-    waypoints: tuple[Waypoint, ...]
-    acceptance_radius_m: float = 15.0
-    loop: bool = False
-
-    def __post_init__(self) -> None:
-        if len(self.waypoints) == 0:
-            raise ValueError("waypoints: expected at least one waypoint")
-        if not self.acceptance_radius_m > 0.0:
-            raise ValueError(
-                f"acceptance_radius_m: expected a value > 0, got {self.acceptance_radius_m}"
-            )
 
 
 @dataclass(frozen=True)

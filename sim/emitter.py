@@ -10,8 +10,8 @@ Every ``time_usec`` is sim time. The sim speaks as system 1, component 1, with a
 a component-1 heartbeat with a vehicle type, without a flight stack to negotiate with).
 
 Truth never goes on the wire: with ``--tlog FILE`` the sim records a first STATUSTEXT
-``SCENARIO <name>`` (:func:`immukf_sitl.mavlink.flightlog.scenario_annotation`), every frame it sends, and
-one HIL_STATE_QUATERNION per step (true attitude quaternion, inertial body rates, position, NED
+``SCENARIO <name>`` (:func:`immukf_sitl.mavlink.flightlog.scenario_annotation`), every frame it
+sends, and one HIL_STATE_QUATERNION per step (true attitude quaternion, inertial body rates, position, NED
 velocity, airspeed, and the true specific force in ``xacc/yacc/zacc`` as mG) whose ``time_usec``
 is the step's sim time, right after the step's frames. Every record is stamped with its step's
 sim time (:mod:`immukf_sitl.mavlink.tlog`), so a reader aligns truth and stream and merges this log
@@ -67,9 +67,9 @@ from immukf_sitl.mavlink.wire import (
 )
 from immukf_sitl.models.earth import isa_density_unchecked
 from immukf_sitl.models.params import Actuators
+from immukf_sitl.models.sensors import IMU_PERIOD_S
 from immukf_sitl.samples import ActuatorSample
 from immukf_sitl.scenario import load_scenario
-from sim.driver import DT_S
 from sim.flight import Flight, FlightRecord
 from sim.scenario_flight import flight_from_scenario
 
@@ -224,7 +224,7 @@ class LockStep:
     right (step times are whole multiples of 10 ms).
     """
 
-    def __init__(self, window_steps: int, dt_s: float = DT_S) -> None:
+    def __init__(self, window_steps: int, dt_s: float = IMU_PERIOD_S) -> None:
         if window_steps < 1:
             raise ValueError(f"window_steps: expected >= 1, got {window_steps}")
         self.window_steps = int(window_steps)

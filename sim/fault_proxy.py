@@ -29,8 +29,8 @@ Several faults apply in file order, each to the output of the previous ones.
 With ``--tlog FILE`` the proxy records the stream exactly as it forwards it to the estimator
 (faults included), one record per frame stamped with the frame's sim time, after a first
 STATUSTEXT ``SCENARIO <name>`` and with a STATUSTEXT ``FAULT <kind> <channels> t=<s>`` at each
-fault's onset and ``FAULT END ...`` at its end (:mod:`immukf_sitl.mavlink.flightlog`), from the proxy's
-component and never forwarded. Merged by record time with the sim's tlog (which holds the
+fault's onset and ``FAULT END ...`` at its end (:mod:`immukf_sitl.mavlink.flightlog`), from the
+proxy's component and never forwarded. Merged by record time with the sim's tlog (which holds the
 truth), it is the flight log that ``replay`` reads.
 """
 
@@ -63,8 +63,9 @@ from immukf_sitl.mavlink.wire import (
     connect,
     mavlink,
 )
+from immukf_sitl.models.sensors import ImuSpec
 from immukf_sitl.samples import ImuSample
-from immukf_sitl.scenario import FaultSpec, ImuNoiseSpec, Scenario, load_scenario
+from immukf_sitl.scenario import FaultSpec, Scenario, load_scenario
 
 __all__ = [
     "FAULT_STREAM_INDEX",
@@ -94,14 +95,14 @@ class FaultInjector:
     ----------
     faults : sequence of FaultSpec
         The schedule (``scenario.faults``), applied in order.
-    imu_noise : ImuNoiseSpec
+    imu_noise : ImuSpec
         Sensor noise: the standard deviation of the noise a ``zero`` fault reports.
     rng : numpy.random.Generator
         Source of that noise (:func:`fault_rng` of the scenario's seed).
     """
 
     def __init__(
-        self, faults: Sequence[FaultSpec], imu_noise: ImuNoiseSpec, rng: np.random.Generator
+        self, faults: Sequence[FaultSpec], imu_noise: ImuSpec, rng: np.random.Generator
     ) -> None:
         self.faults = tuple(faults)
         self.imu_noise = imu_noise

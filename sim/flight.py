@@ -27,11 +27,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from immukf_sitl.models.params import AircraftParams, load_aircraft_params
+from immukf_sitl.models.sensors import IMU_PERIOD_S, GpsSpec, ImuSpec
 from immukf_sitl.samples import GpsSample, ImuSample
-from immukf_sitl.scenario import ManoeuvreSpec
-from sim.autopilot import Autopilot, AutopilotGains, AutopilotStatus, FlightPlan, NavigationState
-from sim.driver import DT_S, InitialConditions, JsbsimDriver, TrimResult, TruthState
-from sim.sensors import GpsModel, GpsSpec, ImuModel, ImuSpec
+from immukf_sitl.scenario import FlightPlan, ManoeuvreSpec
+from sim.autopilot import Autopilot, AutopilotGains, AutopilotStatus, NavigationState
+from sim.driver import JsbsimDriver
+from sim.sensors import GpsModel, ImuModel
+from sim.truth import InitialConditions, TrimResult, TruthState
 
 __all__ = ["Flight", "FlightRecord", "fly"]
 
@@ -106,7 +108,7 @@ class Flight:
         imu_spec: ImuSpec | None = None,
         gps_spec: GpsSpec | None = None,
         gains: AutopilotGains | None = None,
-        dt_s: float = DT_S,
+        dt_s: float = IMU_PERIOD_S,
         manoeuvres: Sequence[ManoeuvreSpec] = (),
     ) -> None:
         self.params = params if params is not None else load_aircraft_params()

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from sim.autopilot import FlightPlan, Waypoint
+from immukf_sitl.scenario import FlightPlan, Waypoint
 
 __all__ = ["default_flight_plan"]
 

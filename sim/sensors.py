@@ -20,104 +20,15 @@ All randomness comes from an injected :class:`numpy.random.Generator` (STYLE.md 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 import pymap3d
 
+from immukf_sitl.models.sensors import GpsSpec, ImuSpec
 from immukf_sitl.samples import GpsSample, ImuSample
-from sim.driver import TruthState
+from sim.truth import TruthState
 
-__all__ = [
-    "GpsModel",
-    "GpsSpec",
-    "ImuModel",
-    "ImuSpec",
-]
-
-
-def _vector3(name: str, values: tuple[float, float, float]) -> None:
-    if len(values) != 3 or not all(math.isfinite(v) for v in values):
-        raise ValueError(f"{name}: expected 3 finite values, got {values!r}")
-
-
-@dataclass(frozen=True)
-class ImuSpec:
-    """Noise of the inertial sensors (B&M ch. 7 defaults).
-
-    Attributes
-    ----------
-    accel_sigma_mps2 : float
-        White-noise standard deviation of each accelerometer (m/s^2); 0.0025 g.
-    gyro_sigma_radps : float
-        White-noise standard deviation of each rate gyro (rad/s); 0.13 deg/s.
-    accel_bias_mps2 : tuple of float
-        Constant accelerometer bias, body FRD (m/s^2).
-    gyro_bias_radps : tuple of float
-        Constant gyro bias, body FRD (rad/s).
-    """
-
-    accel_sigma_mps2: float = 0.0245
-    gyro_sigma_radps: float = 0.00227
-    accel_bias_mps2: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    gyro_bias_radps: tuple[float, float, float] = (0.0, 0.0, 0.0)
-
-    def __post_init__(self) -> None:
-        if not (self.accel_sigma_mps2 >= 0.0 and self.gyro_sigma_radps >= 0.0):
-            raise ValueError(
-                "accel_sigma_mps2, gyro_sigma_radps: expected values >= 0, got "
-                f"{self.accel_sigma_mps2}, {self.gyro_sigma_radps}"
-            )
-        _vector3("accel_bias_mps2", self.accel_bias_mps2)
-        _vector3("gyro_bias_radps", self.gyro_bias_radps)
-
-
-@dataclass(frozen=True)
-class GpsSpec:
-    """Noise and rate of the GPS receiver (B&M ch. 7 defaults).
-
-    Attributes
-    ----------
-    rate_hz : float
-        Fix rate (Hz).
-    north_east_sigma_m : float
-        Driving-noise standard deviation of the north and east Gauss-Markov errors (m).
-    height_sigma_m : float
-        Driving-noise standard deviation of the height Gauss-Markov error (m).
-    k_gps_per_s : float
-        Inverse time constant of the Gauss-Markov errors (1/s).
-    ground_speed_sigma_mps : float
-        White-noise standard deviation of the ground speed (m/s).
-    course_sigma_mps : float
-        Course noise numerator: the course standard deviation is this divided by the ground
-        speed (rad).
-    """
-
-    rate_hz: float = 1.0
-    north_east_sigma_m: float = 0.21
-    height_sigma_m: float = 0.40
-    k_gps_per_s: float = 1.0 / 1100.0
-    ground_speed_sigma_mps: float = 0.05
-    course_sigma_mps: float = 0.05
-
-    def __post_init__(self) -> None:
-        if not self.rate_hz > 0.0:
-            raise ValueError(f"rate_hz: expected a value > 0, got {self.rate_hz}")
-        if not self.k_gps_per_s >= 0.0:
-            raise ValueError(f"k_gps_per_s: expected a value >= 0, got {self.k_gps_per_s}")
-        sigmas = (
-            self.north_east_sigma_m,
-            self.height_sigma_m,
-            self.ground_speed_sigma_mps,
-            self.course_sigma_mps,
-        )
-        if not all(s >= 0.0 for s in sigmas):
-            raise ValueError(f"GPS standard deviations: expected values >= 0, got {sigmas}")
-
-    @property
-    def period_s(self) -> float:
-        """Time between fixes (s)."""
-        return 1.0 / self.rate_hz
+__all__ = ["GpsModel", "ImuModel"]
 
 
 class ImuModel:

@@ -20,13 +20,14 @@ from udp_tools import DatagramSink, bound_socket, cli_process, free_udp_port, pa
 from immukf_sitl.mavlink import codec
 from immukf_sitl.mavlink.tlog import TlogWriter
 from immukf_sitl.mavlink.wire import ESTIMATOR_COMPONENT_ID, mavlink, open_tlog_reader
+from immukf_sitl.models.sensors import ImuSpec
 from immukf_sitl.samples import ImuSample
-from immukf_sitl.scenario import FaultSpec, ImuNoiseSpec, load_scenario
+from immukf_sitl.scenario import FaultSpec, load_scenario
 from sim.fault_proxy import FaultInjector, FaultProxy, fault_rng, repack_highres_imu
 from sim.scenario_flight import flight_from_scenario
 
 REPO = Path(__file__).resolve().parents[1]
-NOISE = ImuNoiseSpec()
+NOISE = ImuSpec()
 BASE = np.array([0.5, 0.02, -9.8, 0.1, 0.2, -0.3])
 
 

@@ -13,7 +13,7 @@ from immukf_sitl.models.params import load_aircraft_params
 from sim.driver import JsbsimDriver
 from sim.flight import fly
 from sim.flight_plans import default_flight_plan
-from sim.sensors import ImuSpec
+from immukf_sitl.models.sensors import ImuSpec
 
 LBF_N = 4.4482216152605
 FT = 0.3048

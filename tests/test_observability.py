@@ -13,7 +13,8 @@ from immukf_sitl.experiments.observability import (
     fault_observable_time_s,
     first_observable_time_s,
 )
-from immukf_sitl.scenario import FaultSpec, ImuNoiseSpec, load_scenario
+from immukf_sitl.models.sensors import ImuSpec
+from immukf_sitl.scenario import FaultSpec, load_scenario
 from sim.scenario_flight import flight_from_scenario
 
 SCENARIO_DIR = Path(__file__).resolve().parents[1] / "scenarios"
@@ -33,7 +34,7 @@ def test_first_time_beyond_the_band():
 
 
 def test_channel_sigmas():
-    imu = ImuNoiseSpec(accel_sigma_mps2=0.1, gyro_sigma_radps=0.01)
+    imu = ImuSpec(accel_sigma_mps2=0.1, gyro_sigma_radps=0.01)
     assert [channel_sigma(c, imu) for c in "xyzpqr"] == [0.1] * 3 + [0.01] * 3
     with pytest.raises(ValueError, match="channel 'w'"):
         channel_sigma("w", imu)
@@ -57,7 +58,7 @@ def test_a_fault_on_several_channels_is_observable_when_any_is():
     imu = np.zeros((t.size, 6))
     imu[:, 2] = -9.8  # f_z: always away from zero
     imu[t >= 2.0, 4] = 0.1  # q: from 2 s
-    noise = ImuNoiseSpec()
+    noise = ImuSpec()
     q_only = FaultSpec(t_s=1.0, channels=("q",))
     assert fault_observable_time_s(q_only, t, imu, noise) == pytest.approx(2.0)
     assert fault_observable_time_s(FaultSpec(t_s=1.0, channels=("z", "q")), t, imu, noise) == 1.0

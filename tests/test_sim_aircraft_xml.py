@@ -10,7 +10,8 @@ import pytest
 from immukf_sitl.models.aero import propeller_thrust_torque
 from immukf_sitl.models.params import load_aircraft_params
 from sim.aircraft_xml import aircraft_xml_path, main, render_aircraft_xml
-from sim.driver import InitialConditions, JsbsimDriver
+from sim.driver import JsbsimDriver
+from sim.truth import InitialConditions
 
 LBF_N = 4.4482216152605
 SLUG_FT3_KG_M3 = 515.378818

@@ -8,12 +8,11 @@ import numpy as np
 import pytest
 
 from immukf_sitl.models.params import load_aircraft_params
+from immukf_sitl.scenario import FlightPlan, Waypoint
 from sim.autopilot import (
     Autopilot,
-    FlightPlan,
     NavigationState,
     PidController,
-    Waypoint,
     wrap_angle_rad,
 )
 from sim.driver import JsbsimDriver

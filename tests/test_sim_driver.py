@@ -9,7 +9,8 @@ import pymap3d
 import pytest
 
 from immukf_sitl.models.params import load_aircraft_params
-from sim.driver import InitialConditions, JsbsimDriver, TruthState
+from sim.driver import JsbsimDriver
+from sim.truth import InitialConditions, TruthState
 
 FT = 0.3048
 

@@ -10,8 +10,10 @@ import pymap3d
 import pytest
 from scipy import stats
 
-from sim.driver import JsbsimDriver, TruthState
-from sim.sensors import GpsModel, GpsSpec, ImuModel, ImuSpec
+from immukf_sitl.models.sensors import GpsSpec, ImuSpec
+from sim.driver import JsbsimDriver
+from sim.sensors import GpsModel, ImuModel
+from sim.truth import TruthState
 
 SEED = 20240611
 

@@ -23,7 +23,8 @@ import numpy as np
 from immukf_sitl.models.aero import AeroModel
 from immukf_sitl.models.earth import NedOrigin
 from immukf_sitl.models.params import load_aircraft_params
-from immukf_sitl.service.filters import SensorNoise, build_aero_estimator
+from immukf_sitl.models.sensors import SensorSpec
+from immukf_sitl.service.filters import build_aero_estimator
 
 GPS_EVERY_STEPS = 100
 ORIGIN = NedOrigin(-33.87, 151.21, 100.0)
@@ -42,12 +43,12 @@ class BenchData:
 def make_flight(model: AeroModel, n_steps: int, seed: int) -> BenchData:
     """Fly the model from trim at 25 m/s with elevator/aileron/rudder doublets."""
     rng = np.random.default_rng(seed)
-    noise = SensorNoise()
+    sensors = SensorSpec()
     x0, u0 = model.trim(25.0)
     x = x0.copy()
     controls, imu, gps = [], [], []
-    imu_sigma = np.sqrt(np.diag(noise.imu_cov()))
-    gps_sigma = np.sqrt(np.diag(noise.gps_cov()))
+    imu_sigma = sensors.imu.sigmas
+    gps_sigma = np.sqrt(np.diag(sensors.gps.noise_cov()))
     for k in range(n_steps):
         t = k * model.dt_s
         u = u0 + np.array(
@@ -107,8 +108,7 @@ def time_filterpy(model: AeroModel, data: BenchData, n_steps: int) -> dict:
     from immukf_sitl.estimation import single_fault_modes, sticky_transition
     from immukf_sitl.service.filters import aero_process_model
 
-    noise = SensorNoise()
-    process = aero_process_model(model, noise)
+    process = aero_process_model(model, SensorSpec())
     current = {"u_prev": data.controls[0], "u": data.controls[0]}
     filters = []
     for mode in single_fault_modes():
@@ -131,7 +131,7 @@ def time_filterpy(model: AeroModel, data: BenchData, n_steps: int) -> dict:
         ukf.x = data.x0.copy()
         ukf.P = initial_cov()
         ukf.Q = process.additive_noise_cov.copy()
-        ukf.R = noise.imu_cov()
+        ukf.R = SensorSpec().imu.noise_cov()
         filters.append(ukf)
     bank = IMMEstimator(filters, np.full(7, 1 / 7), sticky_transition(7, 0.99))
     times_ns = []

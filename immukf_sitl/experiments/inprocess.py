@@ -22,9 +22,9 @@ from immukf_sitl.models.params import load_aircraft_params
 from immukf_sitl.samples import ActuatorSample
 from immukf_sitl.scenario import Scenario
 from immukf_sitl.service.pipeline import EstimateOutput, EstimatorPipeline, PipelineConfig
-from sim.driver import TruthState
 from sim.fault_proxy import FaultInjector
 from sim.scenario_flight import flight_from_scenario
+from sim.truth import TruthState
 
 
 def truth_sample(truth: TruthState) -> TruthSample:

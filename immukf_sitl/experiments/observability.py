@@ -22,7 +22,8 @@ from __future__ import annotations
 import numpy as np
 
 from immukf_sitl.estimation.fault_modes import IMU_CHANNELS
-from immukf_sitl.scenario import FaultSpec, ImuNoiseSpec
+from immukf_sitl.models.sensors import ImuSpec
+from immukf_sitl.scenario import FaultSpec
 
 __all__ = [
     "DEFAULT_N_SIGMA",
@@ -75,7 +76,7 @@ def first_observable_time_s(
     return float(times[index[0]]) if index.size else None
 
 
-def channel_sigma(channel: str, imu: ImuNoiseSpec) -> float:
+def channel_sigma(channel: str, imu: ImuSpec) -> float:
     """White-noise standard deviation of one IMU channel (m/s^2 for x, y, z; rad/s for p, q, r)."""
     if channel not in IMU_CHANNELS:
         raise ValueError(f"channel {channel!r}: expected one of {', '.join(IMU_CHANNELS)}")
@@ -122,7 +123,7 @@ def fault_observable_time_s(
     fault: FaultSpec,
     times_s: np.ndarray,
     true_imu: np.ndarray,
-    imu: ImuNoiseSpec,
+    imu: ImuSpec,
     n_sigma: float = DEFAULT_N_SIGMA,
 ) -> float | None:
     """When a fault first makes any of its channels differ from a healthy one by ``n_sigma``.
@@ -136,7 +137,7 @@ def fault_observable_time_s(
     true_imu : numpy.ndarray
         ``(N, 6)`` true ``[f_x, f_y, f_z (m/s^2), p, q, r (rad/s)]``: the specific force at the
         IMU and the inertial body rates.
-    imu : ImuNoiseSpec
+    imu : ImuSpec
         The scenario's IMU noise (``scenario.sensors.imu``).
     n_sigma : float, optional
         Band half-width in standard deviations (default 5).

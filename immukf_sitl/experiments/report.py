@@ -29,7 +29,8 @@ from immukf_sitl.estimation.fault_modes import FaultMode
 from immukf_sitl.experiments.observability import fault_observable_time_s
 from immukf_sitl.mavlink.flightlog import TruthSample
 from immukf_sitl.models.earth import NedOrigin, geodetic_to_ned
-from immukf_sitl.scenario import ExpectSpec, FaultSpec, ImuNoiseSpec
+from immukf_sitl.models.sensors import ImuSpec
+from immukf_sitl.scenario import ExpectSpec, FaultSpec
 
 
 @dataclass(frozen=True)
@@ -109,7 +110,7 @@ def summarize(
     events: Sequence[EventRecord],
     track: EstimateTrack,
     step_us: dict,
-    imu_noise: ImuNoiseSpec | None = None,
+    imu_noise: ImuSpec | None = None,
     expect: ExpectSpec | None = None,
     settle_s: float = 0.0,
 ) -> dict:
@@ -118,7 +119,7 @@ def summarize(
     Estimation errors count from ``settle_s`` after the first estimate (the alignment
     transient is not what the errors are meant to show).
     """
-    imu_noise = imu_noise if imu_noise is not None else ImuNoiseSpec()
+    imu_noise = imu_noise if imu_noise is not None else ImuSpec()
     t_truth = np.array([s.t_s for s in truth])
     true_imu = np.array(
         [np.concatenate([s.specific_force_mps2, s.rates_radps]) for s in truth]

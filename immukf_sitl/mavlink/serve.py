@@ -1,9 +1,9 @@
 """``immukf-sitl serve``: the estimator service on MAVLink.
 
 Consumes HIGHRES_IMU, GPS_RAW_INT and SERVO_OUTPUT_RAW from ``--in``, runs the IMM-UKF
-(:class:`~immukf_sitl.service.pipeline.EstimatorPipeline`) once per IMU sample and publishes the fused
-state, the mode probabilities and detection events to every ``--out`` (a ground station). On its
-input link it answers each HIGHRES_IMU with a SYSTEM_TIME whose ``time_boot_ms`` is that
+(:class:`~immukf_sitl.service.pipeline.EstimatorPipeline`) once per IMU sample and publishes the
+fused state, the mode probabilities and detection events to every ``--out`` (a ground station).
+On its input link it answers each HIGHRES_IMU with a SYSTEM_TIME whose ``time_boot_ms`` is that
 sample's time: the lock-step acknowledgement the sim waits for.
 
 It never crashes on what arrives: bad CRCs, malformed or non-finite fields, out-of-order or

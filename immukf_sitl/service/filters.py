@@ -35,39 +35,11 @@ from immukf_sitl.models.aero import AeroModel
 from immukf_sitl.models.earth import NedOrigin
 from immukf_sitl.models.ins import InsModel
 from immukf_sitl.models.params import AircraftParams
+from immukf_sitl.models.sensors import IMU_PERIOD_S, SensorSpec
 
 Variant = Literal["ukf1", "ukf2", "ukf3", "imm"]
 VARIANTS: tuple[str, ...] = ("ukf1", "ukf2", "ukf3", "imm")
 GPS_COURSE_CHANNEL = 4
-
-
-@dataclass(frozen=True)
-class SensorNoise:
-    """Standard deviations the filters assume (Beard & McLain ch. 7, DESIGN.md section 6)."""
-
-    accel_mps2: float = 0.0245
-    gyro_radps: float = 0.00227
-    gps_horizontal_m: float = 0.21
-    gps_vertical_m: float = 0.40
-    gps_speed_mps: float = 0.05
-    #: course sigma is 0.05 / Vg rad; the filter uses the value at a nominal ground speed
-    gps_course_rad: float = 0.05 / 20.0
-
-    def imu_cov(self) -> np.ndarray:
-        """``R`` of the six IMU channels."""
-        return np.diag([self.accel_mps2**2] * 3 + [self.gyro_radps**2] * 3)
-
-    def gps_cov(self) -> np.ndarray:
-        """``R`` of the five GPS observables."""
-        return np.diag(
-            [
-                self.gps_horizontal_m**2,
-                self.gps_horizontal_m**2,
-                self.gps_vertical_m**2,
-                self.gps_speed_mps**2,
-                self.gps_course_rad**2,
-            ]
-        )
 
 
 @dataclass(frozen=True)
@@ -116,7 +88,7 @@ class FilterTuning:
 
 
 def aero_process_model(
-    model: AeroModel, noise: SensorNoise | None = None, tuning: FilterTuning | None = None
+    model: AeroModel, sensors: SensorSpec | None = None, tuning: FilterTuning | None = None
 ) -> ProcessModel:
     """``x(k+1) = f[x(k), u(k), v(k)]`` (eq. 1): RK4 of the 6-DOF aircraft model.
 
@@ -126,9 +98,9 @@ def aero_process_model(
     ``f`` flies the step on ``u(k)``, the output model predicts the IMU at ``k+1`` with
     ``u(k+1)`` (the specific force depends on the surfaces and throttle acting at the sample).
     """
-    noise = noise if noise is not None else SensorNoise()
+    sensors = sensors if sensors is not None else SensorSpec()
     tuning = tuning if tuning is not None else FilterTuning()
-    sigma = tuning.process_noise_factor * np.array([noise.accel_mps2] * 3 + [noise.gyro_radps] * 3)
+    sigma = tuning.process_noise_factor * sensors.imu.sigmas
     q = np.diag(sigma**2)
     # additive form: v held over one step moves velocity and rates by v dt
     dt = model.dt_s
@@ -149,7 +121,7 @@ def aero_process_model(
 
 
 def aero_measurement_models(
-    model: AeroModel, modes: Sequence[FaultMode], noise: SensorNoise
+    model: AeroModel, modes: Sequence[FaultMode], sensors: SensorSpec
 ) -> tuple[MeasurementModel, MeasurementModel]:
     """Mode-batched output models (eq. 2): IMU alone, and IMU followed by GPS."""
 
@@ -159,10 +131,12 @@ def aero_measurement_models(
     def imu_gps(t_s: float, x: np.ndarray, u: np.ndarray, w: np.ndarray | None) -> np.ndarray:
         return np.concatenate([model.imu(t_s, x, u[1]), model.gps(t_s, x, u[1])])
 
-    imu_only = MeasurementModel(fault_masked_output(imu, modes), noise.imu_cov(), name="imu")
+    imu_only = MeasurementModel(
+        fault_masked_output(imu, modes), sensors.imu.noise_cov(), name="imu"
+    )
     gps_cov = np.zeros((11, 11))
-    gps_cov[:6, :6] = noise.imu_cov()
-    gps_cov[6:, 6:] = noise.gps_cov()
+    gps_cov[:6, :6] = sensors.imu.noise_cov()
+    gps_cov[6:, 6:] = sensors.gps.noise_cov()
     with_gps = MeasurementModel(
         fault_masked_output(imu_gps, modes, n_extra=5),
         gps_cov,
@@ -351,7 +325,7 @@ def build_aero_estimator(
     variant: Variant,
     model: AeroModel,
     true_mode: FaultMode | None = None,
-    noise: SensorNoise | None = None,
+    sensors: SensorSpec | None = None,
     tuning: FilterTuning | None = None,
     noise_form: NoiseForm = "augmented",
     kappa: float = 0.0,
@@ -362,7 +336,7 @@ def build_aero_estimator(
     ``backend`` selects the filter's implementation (numpy reference or compiled kernels, see
     :class:`UnscentedKalmanFilter`); the model's is chosen when ``model`` is built.
     """
-    noise = noise if noise is not None else SensorNoise()
+    sensors = sensors if sensors is not None else SensorSpec()
     tuning = tuning if tuning is not None else FilterTuning()
     if variant == "imm":
         modes = single_fault_modes()
@@ -374,12 +348,12 @@ def build_aero_estimator(
         modes = (FaultMode(0),)
     else:
         raise ValueError(f"not an aerodynamic-model variant: {variant!r}")
-    process = aero_process_model(model, noise, tuning)
+    process = aero_process_model(model, sensors, tuning)
     ukf = UnscentedKalmanFilter(process, JulierSigmaPoints(kappa), noise_form, backend)
     transition = tuning.transition(modes)
     floor = tuning.probability_floor if len(modes) > 1 else 0.0
     imm = ImmEstimator(ukf, transition, floor)
-    imu_model, imu_gps_model = aero_measurement_models(model, modes, noise)
+    imu_model, imu_gps_model = aero_measurement_models(model, modes, sensors)
     return AircraftEstimator(variant, tuple(modes), imm, imu_model, imu_gps_model)
 
 
@@ -452,15 +426,19 @@ class InsEstimator:
 
 def build_ins_estimator(
     origin: NedOrigin,
-    noise: SensorNoise | None = None,
+    sensors: SensorSpec | None = None,
     noise_form: NoiseForm = "augmented",
     kappa: float = 0.0,
-    dt_s: float = 0.01,
+    dt_s: float = IMU_PERIOD_S,
 ) -> InsEstimator:
     """UKF-3 of the paper: the INS equations, fault-free, GPS-aided."""
-    noise = noise if noise is not None else SensorNoise()
-    ins = InsModel(origin, dt_s=dt_s, accel_noise_mps2=noise.accel_mps2,
-                   gyro_noise_radps=noise.gyro_radps)  # fmt: skip
+    sensors = sensors if sensors is not None else SensorSpec()
+    ins = InsModel(
+        origin,
+        dt_s=dt_s,
+        accel_noise_mps2=sensors.imu.accel_sigma_mps2,
+        gyro_noise_radps=sensors.imu.gyro_sigma_radps,
+    )
     q = ins.process_noise_cov()
     # additive form: input noise held over one step moves velocity by f dt (rotation ignored)
     additive = np.zeros((9, 9))
@@ -472,7 +450,9 @@ def build_ins_estimator(
         z = ins.gps(t_s, x, u)
         return z if w is None else z + w
 
-    gps_model = MeasurementModel(gps, noise.gps_cov(), angle_idx=(GPS_COURSE_CHANNEL,), name="gps")
+    gps_model = MeasurementModel(
+        gps, sensors.gps.noise_cov(), angle_idx=(GPS_COURSE_CHANNEL,), name="gps"
+    )
     imm = ImmEstimator(
         UnscentedKalmanFilter(process, JulierSigmaPoints(kappa), noise_form), np.ones((1, 1))
     )
@@ -487,14 +467,14 @@ def build_estimator(
     params: AircraftParams,
     origin: NedOrigin,
     true_mode: FaultMode | None = None,
-    noise: SensorNoise | None = None,
+    sensors: SensorSpec | None = None,
     tuning: FilterTuning | None = None,
 ) -> Estimator:
     """Any of the paper's four variants (``ukf1``, ``ukf2``, ``ukf3``, ``imm``) about ``origin``."""
     if variant not in VARIANTS:
         raise ValueError(f"unknown variant {variant!r}: expected one of {', '.join(VARIANTS)}")
     if variant == "ukf3":
-        return build_ins_estimator(origin, noise)
+        return build_ins_estimator(origin, sensors)
     return build_aero_estimator(
-        variant, AeroModel(params, origin), true_mode=true_mode, noise=noise, tuning=tuning
+        variant, AeroModel(params, origin), true_mode=true_mode, sensors=sensors, tuning=tuning
     )

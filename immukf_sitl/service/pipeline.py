@@ -29,18 +29,16 @@ import numpy as np
 from immukf_sitl.estimation.fault_modes import FaultMode
 from immukf_sitl.models.earth import NedOrigin, geodetic_to_ned, ned_to_geodetic
 from immukf_sitl.models.params import AircraftParams
+from immukf_sitl.models.sensors import IMU_PERIOD_S, SensorSpec
 from immukf_sitl.samples import ActuatorSample, GpsSample, ImuSample
 from immukf_sitl.service.detection import DetectionEvent, DetectorConfig, FaultDetector
 from immukf_sitl.service.filters import (
     Estimator,
     FilterTuning,
     NavSolution,
-    SensorNoise,
     align,
     build_estimator,
 )
-
-IMU_PERIOD_S = 0.01
 
 
 @dataclass(frozen=True)
@@ -50,7 +48,7 @@ class PipelineConfig:
     variant: str = "imm"
     true_mode: FaultMode | None = None
     tuning: FilterTuning = field(default_factory=FilterTuning)
-    noise: SensorNoise = field(default_factory=SensorNoise)
+    sensors: SensorSpec = field(default_factory=SensorSpec)
     detector: DetectorConfig = field(default_factory=DetectorConfig)
     min_align_speed_mps: float = 10.0
     max_gap_s: float = 1.0
@@ -152,7 +150,7 @@ class EstimatorPipeline:
         x0, u0 = AeroModel(self.params, origin).trim(25.0)
         cfg = self.config
         estimator = build_estimator(
-            cfg.variant, self.params, origin, cfg.true_mode, cfg.noise, cfg.tuning
+            cfg.variant, self.params, origin, cfg.true_mode, cfg.sensors, cfg.tuning
         )
         imu = np.array([0.5, 0.0, -9.8, 0.0, 0.0, 0.0])
         gps = np.array([0.0, 0.0, 0.0, float(x0[3]), 0.0])
@@ -249,14 +247,8 @@ class EstimatorPipeline:
         """Reject a fix far outside the estimate's and the receiver's uncertainty."""
         assert self.estimator is not None
         nav = self.estimator.navigation()
-        noise = self.config.noise
-        var = (
-            nav.position_sigma_m**2
-            + np.array(
-                [noise.gps_horizontal_m**2, noise.gps_horizontal_m**2, noise.gps_vertical_m**2]
-            )
-            + self.config.gps_gate_floor_m**2
-        )
+        receiver_var = np.diagonal(self.config.sensors.gps.noise_cov())[:3]
+        var = nav.position_sigma_m**2 + receiver_var + self.config.gps_gate_floor_m**2
         d2 = float(np.sum((gps[:3] - nav.position_ned_m) ** 2 / var))
         if (
             d2 <= self.config.gps_gate_chi2
@@ -275,7 +267,7 @@ class EstimatorPipeline:
         assert self.origin is not None and self._controls is not None
         cfg = self.config
         estimator = build_estimator(
-            cfg.variant, self.params, self.origin, cfg.true_mode, cfg.noise, cfg.tuning
+            cfg.variant, self.params, self.origin, cfg.true_mode, cfg.sensors, cfg.tuning
         )
         # the alignment sample itself is the first step's measurement: start one period earlier
         nav = align(t_s - IMU_PERIOD_S, imu, gps)
