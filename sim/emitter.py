@@ -16,8 +16,8 @@ position, NED velocity, airspeed, and the true specific force in ``xacc/yacc/zac
 whose ``time_usec`` is the step's sim time, right after the step's frames. Every record is
 stamped with its step's sim time (:mod:`immukf_sitl.mavlink.tlog`), so a reader aligns truth and
 stream and merges this log with the fault proxy's. The annotation and the truth frames carry
-component :data:`TRUTH_COMPONENT_ID` with their own sequence numbers, so the stream of component 1 has no
-sequence gaps, in the log or on the wire.
+component :data:`TRUTH_COMPONENT_ID` with their own sequence numbers, so the stream of
+component 1 has no sequence gaps, in the log or on the wire.
 
 Pacing (DESIGN.md section 4; the split px4-jsbsim-bridge and ArduPilot's SIM_JSBSim use):
 
