@@ -1,7 +1,8 @@
-"""Sensor and actuator samples in SI units: what the MAVLink layer decodes and the sim emits.
+"""Sensor, actuator and truth samples in SI units: what the MAVLink layer decodes and the sim emits.
 
 Plain frozen records with no MAVLink in them; :mod:`immukf_sitl.mavlink.codec` converts them to
-and from HIGHRES_IMU, GPS_RAW_INT and SERVO_OUTPUT_RAW.
+and from HIGHRES_IMU, GPS_RAW_INT, SERVO_OUTPUT_RAW and (truth, for logs only)
+HIL_STATE_QUATERNION.
 """
 
 from __future__ import annotations
@@ -90,3 +91,40 @@ class ActuatorSample:
 
     time_s: float
     pwm_us: tuple[int, ...]
+
+
+@dataclass(frozen=True)
+class TruthSample:
+    """The simulation's truth at one step, as a flight log holds it (never sent to the estimator).
+
+    Attributes
+    ----------
+    t_s : float
+        Sim time (s).
+    lat_deg, lon_deg, alt_m : float
+        WGS-84 position (deg, deg, m above the ellipsoid).
+    euler_rad : ndarray, shape (3,)
+        Roll, pitch, yaw (ZYX).
+    rates_radps : ndarray, shape (3,)
+        Inertial body rates p, q, r (what a gyro measures).
+    velocity_ned_mps : ndarray, shape (3,)
+        Velocity over the ground, NED.
+    specific_force_mps2 : ndarray, shape (3,)
+        True specific force at the IMU, body FRD.
+    airspeed_mps : float
+        True airspeed.
+    """
+
+    t_s: float
+    lat_deg: float
+    lon_deg: float
+    alt_m: float
+    euler_rad: np.ndarray
+    rates_radps: np.ndarray
+    velocity_ned_mps: np.ndarray
+    specific_force_mps2: np.ndarray
+    airspeed_mps: float = 0.0
+
+    def channel(self, index: int) -> float:
+        """True value of IMU channel ``index`` (x, y, z specific force; p, q, r)."""
+        return float(self.specific_force_mps2[index] if index < 3 else self.rates_radps[index - 3])

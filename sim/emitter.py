@@ -49,9 +49,11 @@ from types import FrameType
 from immukf_sitl.errors import UserError
 from immukf_sitl.mavlink.codec import (
     gps_raw_int_message,
+    heartbeat_message,
     highres_imu_message,
     servo_output_raw_message,
-    usec,
+    statustext_message,
+    truth_message,
 )
 from immukf_sitl.mavlink.flightlog import scenario_annotation
 from immukf_sitl.mavlink.tlog import TlogWriter
@@ -65,7 +67,6 @@ from immukf_sitl.mavlink.wire import (
     connect,
     mavlink,
 )
-from immukf_sitl.models.earth import isa_density_unchecked
 from immukf_sitl.models.params import Actuators
 from immukf_sitl.models.sensors import IMU_PERIOD_S
 from immukf_sitl.samples import ActuatorSample
@@ -91,17 +92,6 @@ DEFAULT_WINDOW_STEPS = 10
 DEFAULT_ACK_TIMEOUT_S = 10.0
 #: Component id of the truth frames in the tlog (MAV_COMP_ID_USER1, a private-use id).
 TRUTH_COMPONENT_ID = mavlink.MAV_COMP_ID_USER1
-#: Standard gravity: specific force in mG for HIL_STATE_QUATERNION (MAVLink common).
-_G0_MPS2 = 9.80665
-_RHO_SEA_LEVEL_KGPM3 = 1.225  # ISA sea level: indicated airspeed from the true airspeed
-
-
-def _int16(value: float) -> int:
-    return int(max(-32768, min(32767, round(value))))
-
-
-def _uint16(value: float) -> int:
-    return int(max(0, min(65535, round(value))))
 
 
 class StepEncoder:
@@ -119,17 +109,6 @@ class StepEncoder:
         self.actuators = actuators
         self.heartbeat_period_s = float(heartbeat_period_s)
         self._next_heartbeat_s = 0.0
-
-    def heartbeat(self) -> MavMessage:
-        """HEARTBEAT of the simulated vehicle (fixed wing, no flight stack, active)."""
-        return mavlink.MAVLink_heartbeat_message(
-            mavlink.MAV_TYPE_FIXED_WING,
-            mavlink.MAV_AUTOPILOT_INVALID,
-            0,
-            0,
-            mavlink.MAV_STATE_ACTIVE,
-            3,
-        )
 
     def actuator_sample(self, record: FlightRecord) -> ActuatorSample:
         """The record's controls as PWM per servo channel (1..16, 0 = unused)."""
@@ -150,7 +129,7 @@ class StepEncoder:
         """
         out: list[MavMessage] = []
         if record.time_s >= self._next_heartbeat_s - 1e-6:
-            out.append(self.heartbeat())
+            out.append(heartbeat_message(mavlink.MAV_TYPE_FIXED_WING))
             self._next_heartbeat_s += self.heartbeat_period_s
         if record.gps is not None:
             out.append(gps_raw_int_message(record.gps))
@@ -160,50 +139,11 @@ class StepEncoder:
 
     def scenario_message(self, name: str) -> MavMessage:
         """STATUSTEXT naming the scenario (first record of a tlog; never sent)."""
-        text = scenario_annotation(name).encode()
-        return mavlink.MAVLink_statustext_message(mavlink.MAV_SEVERITY_INFO, text)
+        return statustext_message(scenario_annotation(name))
 
     def truth_message(self, record: FlightRecord) -> MavMessage:
-        """HIL_STATE_QUATERNION of the record's truth (for the tlog only).
-
-        Attitude quaternion ``[w, x, y, z]`` of the ZYX Euler angles (body FRD to NED); rates
-        are the inertial body rates a gyro measures (rad/s); ``vx, vy, vz`` NED velocity
-        (cm/s); ``xacc..zacc`` the true specific force at the IMU (mG).
-        """
-        truth = record.truth
-        phi, theta, psi = (0.5 * float(a) for a in truth.euler_rad)
-        cf, sf = math.cos(phi), math.sin(phi)
-        ct, st = math.cos(theta), math.sin(theta)
-        cp, sp = math.cos(psi), math.sin(psi)
-        quaternion = [
-            cf * ct * cp + sf * st * sp,
-            sf * ct * cp - cf * st * sp,
-            cf * st * cp + sf * ct * sp,
-            cf * ct * sp - sf * st * cp,
-        ]
-        rates = truth.rates_body_radps
-        velocity_cmps = truth.velocity_ned_mps * 100.0
-        force_mg = truth.specific_force_body_mps2 / _G0_MPS2 * 1000.0
-        density = float(isa_density_unchecked(truth.alt_m))
-        indicated_mps = truth.airspeed_mps * math.sqrt(density / _RHO_SEA_LEVEL_KGPM3)
-        return mavlink.MAVLink_hil_state_quaternion_message(
-            usec(truth.time_s),
-            quaternion,
-            float(rates[0]),
-            float(rates[1]),
-            float(rates[2]),
-            int(round(truth.lat_deg * 1e7)),
-            int(round(truth.lon_deg * 1e7)),
-            int(round(truth.alt_m * 1000.0)),
-            _int16(velocity_cmps[0]),
-            _int16(velocity_cmps[1]),
-            _int16(velocity_cmps[2]),
-            _uint16(indicated_mps * 100.0),
-            _uint16(truth.airspeed_mps * 100.0),
-            _int16(force_mg[0]),
-            _int16(force_mg[1]),
-            _int16(force_mg[2]),
-        )
+        """HIL_STATE_QUATERNION of the record's truth (for the tlog only)."""
+        return truth_message(record.truth.sample())
 
 
 class LockStep:

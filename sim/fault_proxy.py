@@ -51,7 +51,12 @@ import numpy as np
 
 from immukf_sitl.errors import UserError
 from immukf_sitl.estimation.fault_modes import IMU_CHANNELS
-from immukf_sitl.mavlink.codec import DecodeError, decode_highres_imu
+from immukf_sitl.mavlink.codec import (
+    DecodeError,
+    decode_highres_imu,
+    repack_highres_imu,
+    statustext_message,
+)
 from immukf_sitl.mavlink.flightlog import fault_annotation, scenario_annotation
 from immukf_sitl.mavlink.tlog import TlogWriter
 from immukf_sitl.mavlink.wire import (
@@ -59,7 +64,6 @@ from immukf_sitl.mavlink.wire import (
     SIM_SYSTEM_ID,
     ConnectionError_,
     MavConnection,
-    MavMessage,
     connect,
     mavlink,
 )
@@ -74,7 +78,6 @@ __all__ = [
     "ProxyStats",
     "fault_rng",
     "register",
-    "repack_highres_imu",
 ]
 
 #: Child of ``numpy.random.SeedSequence(scenario.seed)`` that feeds the proxy's noise. The sim's
@@ -164,28 +167,6 @@ class FaultInjector:
         return ImuSample(t, values[:3], values[3:])
 
 
-def repack_highres_imu(original: MavMessage, sample: ImuSample) -> bytes:
-    """A HIGHRES_IMU frame like ``original`` with the six inertial channels of ``sample``.
-
-    Every other field (``time_usec``, magnetometer, pressure, ``fields_updated``, ``id``), the
-    source system and component, the sequence number and the protocol version are kept.
-    Signatures are not (the proxy holds no key); unsigned traffic is the project's default.
-    """
-    values = {name: getattr(original, name) for name in original.get_fieldnames()}
-    a, g = sample.accel_mps2, sample.gyro_radps
-    values.update(
-        xacc=float(a[0]), yacc=float(a[1]), zacc=float(a[2]),
-        xgyro=float(g[0]), ygyro=float(g[1]), zgyro=float(g[2]),
-    )  # fmt: skip
-    message = mavlink.MAVLink_highres_imu_message(
-        *(values[name] for name in original.get_fieldnames())
-    )
-    encoder = mavlink.MAVLink(None, original.get_srcSystem(), original.get_srcComponent())
-    encoder.seq = original.get_seq()
-    mavlink1 = original.get_msgbuf()[0] == mavlink.PROTOCOL_MARKER_V1
-    return bytes(message.pack(encoder, force_mavlink1=mavlink1))
-
-
 @dataclass(frozen=True)
 class ProxyStats:
     """What the proxy did (the ``--json`` object).
@@ -258,7 +239,7 @@ class FaultProxy:
 
     def _annotate(self, text: str, time_s: float) -> None:
         assert self.tlog is not None
-        message = mavlink.MAVLink_statustext_message(mavlink.MAV_SEVERITY_INFO, text.encode())
+        message = statustext_message(text)
         self.tlog.write(message.pack(self._annotator), time_s)
         self._annotator.seq = (self._annotator.seq + 1) % 256
 

@@ -11,6 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from immukf_sitl.samples import TruthSample
+
 __all__ = ["InitialConditions", "TrimResult", "TruthState"]
 
 
@@ -118,6 +120,20 @@ class TruthState:
     beta_rad: float
     specific_force_body_mps2: np.ndarray
     controls: np.ndarray
+
+    def sample(self) -> TruthSample:
+        """This state as a flight log holds it (:class:`immukf_sitl.samples.TruthSample`)."""
+        return TruthSample(
+            self.time_s,
+            self.lat_deg,
+            self.lon_deg,
+            self.alt_m,
+            np.asarray(self.euler_rad),
+            np.asarray(self.rates_body_radps),
+            np.asarray(self.velocity_ned_mps),
+            np.asarray(self.specific_force_body_mps2),
+            self.airspeed_mps,
+        )
 
     def state_vector(self) -> np.ndarray:
         """The 12-state of the aerodynamic-model filter (docs/conventions.md).

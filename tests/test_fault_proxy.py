@@ -18,12 +18,13 @@ from test_sim_emitter import Acknowledger
 from udp_tools import DatagramSink, bound_socket, cli_process, free_udp_port, parse_frames
 
 from immukf_sitl.mavlink import codec
+from immukf_sitl.mavlink.codec import repack_highres_imu
 from immukf_sitl.mavlink.tlog import TlogWriter
 from immukf_sitl.mavlink.wire import ESTIMATOR_COMPONENT_ID, mavlink, open_tlog_reader
 from immukf_sitl.models.sensors import ImuSpec
 from immukf_sitl.samples import ImuSample
 from immukf_sitl.scenario import FaultSpec, load_scenario
-from sim.fault_proxy import FaultInjector, FaultProxy, fault_rng, repack_highres_imu
+from sim.fault_proxy import FaultInjector, FaultProxy, fault_rng
 from sim.scenario_flight import flight_from_scenario
 
 REPO = Path(__file__).resolve().parents[1]

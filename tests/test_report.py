@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from immukf_sitl.experiments.report import EstimateTrack, EventRecord, estimation_errors, summarize
-from immukf_sitl.mavlink.flightlog import TruthSample
+from immukf_sitl.samples import TruthSample
 from immukf_sitl.scenario import ExpectSpec, FaultSpec
 
 DT = 0.01

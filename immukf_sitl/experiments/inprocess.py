@@ -17,9 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from immukf_sitl.experiments.report import EstimateTrack, EventRecord, summarize
-from immukf_sitl.mavlink.flightlog import TruthSample
 from immukf_sitl.models.params import load_aircraft_params
-from immukf_sitl.samples import ActuatorSample
+from immukf_sitl.samples import ActuatorSample, TruthSample
 from immukf_sitl.scenario import Scenario
 from immukf_sitl.service.pipeline import EstimateOutput, EstimatorPipeline, PipelineConfig
 from sim.fault_proxy import FaultInjector

@@ -27,9 +27,9 @@ import numpy as np
 from immukf_sitl.estimation.angles import wrap_angle
 from immukf_sitl.estimation.fault_modes import FaultMode
 from immukf_sitl.experiments.observability import fault_observable_time_s
-from immukf_sitl.mavlink.flightlog import TruthSample
 from immukf_sitl.models.earth import NedOrigin, geodetic_to_ned
 from immukf_sitl.models.sensors import ImuSpec
+from immukf_sitl.samples import TruthSample
 from immukf_sitl.scenario import ExpectSpec, FaultSpec
 
 

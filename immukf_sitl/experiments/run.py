@@ -33,10 +33,9 @@ from immukf_sitl.experiments.report import (
     plot_summary,
     summarize,
 )
-from immukf_sitl.mavlink.flightlog import read_estimator_log, read_flight_log, read_records
+from immukf_sitl.mavlink.flightlog import merge_flight_log, read_estimator_log, read_flight_log
+from immukf_sitl.mavlink.listener import GroundStationListener
 from immukf_sitl.mavlink.serve import add_filter_arguments
-from immukf_sitl.mavlink.tlog import TlogWriter
-from immukf_sitl.mavlink.wire import connect
 from immukf_sitl.scenario import Scenario, load_scenario
 
 #: How long serve (which compiles its kernels first) and proxy may take to bind their ports.
@@ -147,72 +146,6 @@ def _filter_argv(args: argparse.Namespace) -> list[str]:
     return argv
 
 
-def merge_flight_log(
-    proxy_tlog: Path, sim_tlog: Path, out_path: Path, truth_hz: float | None = None
-) -> int:
-    """flight.tlog = the proxy's forwarded stream and annotations + the sim's truth records.
-
-    Both logs are stamped with sim time; records are merged in time order (stream before truth
-    at equal times). ``truth_hz`` thins the truth to that rate. Returns the bytes written.
-    """
-    from immukf_sitl.mavlink.wire import mavlink
-
-    stream = read_records(proxy_tlog)
-    truth = []
-    next_truth_s = -1.0
-    period = 1.0 / truth_hz if truth_hz else 0.0
-    parser = mavlink.MAVLink(None)
-    parser.robust_parsing = True
-    for t_s, frame in read_records(sim_tlog):
-        msgs = parser.parse_buffer(frame) or []
-        kind = msgs[0].get_type() if msgs else ""
-        if kind == "HIL_STATE_QUATERNION":
-            if t_s + 1e-9 >= next_truth_s:
-                truth.append((t_s, frame))
-                next_truth_s = t_s + period
-        elif kind == "STATUSTEXT" and msgs[0].text.startswith("SCENARIO "):
-            truth.append((t_s, frame))
-    merged = sorted(
-        [(t, 0, i, f) for i, (t, f) in enumerate(stream)]
-        + [(t, 1, i, f) for i, (t, f) in enumerate(truth)]
-    )
-    size = 0
-    with TlogWriter(out_path) as writer:
-        for t_s, _, _, frame in merged:
-            writer.write(frame, t_s)
-            size += 8 + len(frame)
-    return size
-
-
-class ProgressListener:
-    """A minimal ground station on the estimator's output: mode probabilities and texts."""
-
-    def __init__(self, port: int) -> None:
-        self.conn = connect(f"udpin:127.0.0.1:{port}", 255, 190)
-        self.t_s = 0.0
-        self.probabilities: dict[str, float] = {}
-        self.texts: list[str] = []
-
-    def poll(self) -> None:
-        """Read everything waiting."""
-        while True:
-            msg = self.conn.recv_msg()
-            if msg is None:
-                return
-            kind = msg.get_type()
-            if kind == "NAMED_VALUE_FLOAT" and msg.name.startswith("MP_"):
-                self.probabilities[msg.name] = msg.value
-                self.t_s = msg.time_boot_ms / 1000.0
-            elif kind == "STATUSTEXT":
-                self.texts.append(msg.text)
-
-    def line(self, duration_s: float) -> str:
-        """Progress for people."""
-        top = sorted(self.probabilities.items(), key=lambda kv: -kv[1])[:2]
-        probs = "  ".join(f"{n}={p:.2f}" for n, p in top)
-        return f"run: t={self.t_s:5.1f}/{duration_s:.0f} s  {probs}"
-
-
 def run_scenario(
     scenario: Scenario,
     scenario_path: str,
@@ -241,7 +174,7 @@ def run_scenario(
         sim_argv += ["--duration", str(args.duration)]
     duration_s = args.duration or scenario.duration_s
 
-    listener = ProgressListener(p_run)
+    listener = GroundStationListener(f"udpin:127.0.0.1:{p_run}")
     children: list[Child] = []
     started = time.monotonic()
     try:

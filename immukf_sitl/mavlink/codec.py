@@ -1,7 +1,10 @@
-"""Conversions between MAVLink messages and the SI samples of :mod:`immukf_sitl.samples`.
+"""Conversions between MAVLink messages and the SI records of :mod:`immukf_sitl.samples`.
 
+Every message the project builds or reads field by field is converted here (the serve loop, the
+sim's emitter, the proxy and the log readers call these; nothing else touches message fields).
 Units on the wire (MAVLink common): HIGHRES_IMU m/s^2 and rad/s; GPS_RAW_INT lat/lon degE7,
-alt mm, vel cm/s, cog cdeg (0..35999, 65535 unknown); SERVO_OUTPUT_RAW us.
+alt mm, vel cm/s, cog cdeg (0..35999, 65535 unknown); SERVO_OUTPUT_RAW us; HIL_STATE_QUATERNION
+degE7, mm, cm/s and mG.
 """
 
 from __future__ import annotations
@@ -11,7 +14,8 @@ import math
 import numpy as np
 
 from immukf_sitl.mavlink.wire import MavMessage, mavlink
-from immukf_sitl.samples import ActuatorSample, GpsSample, ImuSample
+from immukf_sitl.models.earth import isa_density_unchecked
+from immukf_sitl.samples import ActuatorSample, GpsSample, ImuSample, TruthSample
 
 #: HIGHRES_IMU fields_updated bits of the six inertial channels (XACC..ZGYRO).
 IMU_FIELDS_BITS = 0x3F
@@ -20,6 +24,10 @@ GPS_COG_UNKNOWN = 65535
 MAX_ACCEL_MPS2 = 16 * 9.80665
 MAX_RATE_RADPS = math.radians(2000.0)
 N_SERVO_CHANNELS = 16
+#: Standard gravity: specific force in mG for HIL_STATE_QUATERNION (MAVLink common).
+G0_MPS2 = 9.80665
+#: ISA sea-level density: indicated airspeed from the true airspeed (kg/m^3).
+RHO_SEA_LEVEL_KGPM3 = 1.225
 
 
 class DecodeError(ValueError):
@@ -127,3 +135,88 @@ def quaternion_to_euler(q_wxyz: np.ndarray) -> np.ndarray:
 
     w, x, y, z = q_wxyz
     return Rotation.from_quat([x, y, z, w]).as_euler("ZYX")[::-1]
+
+
+def heartbeat_message(mav_type: int) -> MavMessage:
+    """HEARTBEAT of a vehicle or component of ``mav_type`` with no flight stack, active."""
+    return mavlink.MAVLink_heartbeat_message(
+        mav_type, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, mavlink.MAV_STATE_ACTIVE, 3
+    )
+
+
+def statustext_message(text: str, severity: int = mavlink.MAV_SEVERITY_INFO) -> MavMessage:
+    """STATUSTEXT of at most 50 characters (longer texts are cut)."""
+    return mavlink.MAVLink_statustext_message(severity, text[:50].encode())
+
+
+def _int16(value: float) -> int:
+    return int(max(-32768, min(32767, round(value))))
+
+
+def _uint16(value: float) -> int:
+    return int(max(0, min(65535, round(value))))
+
+
+def truth_message(truth: TruthSample) -> MavMessage:
+    """HIL_STATE_QUATERNION of the sim's truth (for the tlog only, never sent).
+
+    Attitude quaternion ``[w, x, y, z]`` of the ZYX Euler angles (body FRD to NED); rates are the
+    inertial body rates a gyro measures (rad/s); ``vx, vy, vz`` NED velocity (cm/s);
+    ``xacc..zacc`` the true specific force at the IMU (mG).
+    """
+    velocity_cmps = np.asarray(truth.velocity_ned_mps) * 100.0
+    force_mg = np.asarray(truth.specific_force_mps2) / G0_MPS2 * 1000.0
+    density = float(isa_density_unchecked(truth.alt_m))
+    indicated_mps = truth.airspeed_mps * math.sqrt(density / RHO_SEA_LEVEL_KGPM3)
+    rates = truth.rates_radps
+    return mavlink.MAVLink_hil_state_quaternion_message(
+        usec(truth.t_s),
+        [float(c) for c in euler_to_quaternion(truth.euler_rad)],
+        float(rates[0]),
+        float(rates[1]),
+        float(rates[2]),
+        int(round(truth.lat_deg * 1e7)),
+        int(round(truth.lon_deg * 1e7)),
+        int(round(truth.alt_m * 1000.0)),
+        *(_int16(v) for v in velocity_cmps),
+        _uint16(indicated_mps * 100.0),
+        _uint16(truth.airspeed_mps * 100.0),
+        *(_int16(f) for f in force_mg),
+    )
+
+
+def decode_truth(msg: MavMessage) -> TruthSample:
+    """HIL_STATE_QUATERNION to a :class:`TruthSample`."""
+    return TruthSample(
+        t_s=msg.time_usec * 1e-6,
+        lat_deg=msg.lat * 1e-7,
+        lon_deg=msg.lon * 1e-7,
+        alt_m=msg.alt * 1e-3,
+        euler_rad=quaternion_to_euler(np.array(msg.attitude_quaternion, dtype=float)),
+        rates_radps=np.array([msg.rollspeed, msg.pitchspeed, msg.yawspeed]),
+        velocity_ned_mps=np.array([msg.vx, msg.vy, msg.vz]) / 100.0,
+        specific_force_mps2=np.array([msg.xacc, msg.yacc, msg.zacc]) * (G0_MPS2 / 1000.0),
+        airspeed_mps=msg.true_airspeed / 100.0,
+    )
+
+
+def repack_highres_imu(original: MavMessage, sample: ImuSample) -> bytes:
+    """A HIGHRES_IMU frame like ``original`` with the six inertial channels of ``sample``.
+
+    Every other field (``time_usec``, magnetometer, pressure, ``fields_updated``, ``id``), the
+    source system and component, the sequence number and the protocol version are kept.
+    Signatures are not (the proxy holds no key); unsigned traffic is the project's default.
+    """
+    values = {name: getattr(original, name) for name in original.get_fieldnames()}
+    a, g = sample.accel_mps2, sample.gyro_radps
+    values.update(
+        xacc=float(a[0]), yacc=float(a[1]), zacc=float(a[2]),
+        xgyro=float(g[0]), ygyro=float(g[1]), zgyro=float(g[2]),
+    )  # fmt: skip
+    message = mavlink.MAVLink_highres_imu_message(
+        *(values[name] for name in original.get_fieldnames())
+    )
+    encoder = mavlink.MAVLink(None, original.get_srcSystem(), original.get_srcComponent())
+    encoder.seq = original.get_seq()
+    mavlink1 = original.get_msgbuf()[0] == mavlink.PROTOCOL_MARKER_V1
+    return bytes(message.pack(encoder, force_mavlink1=mavlink1))

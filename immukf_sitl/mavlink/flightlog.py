@@ -24,11 +24,11 @@ import numpy as np
 
 from immukf_sitl.errors import UserError
 from immukf_sitl.mavlink import codec
-from immukf_sitl.mavlink.wire import MavMessage, open_tlog_reader
-from immukf_sitl.samples import ActuatorSample, GpsSample, ImuSample
+from immukf_sitl.mavlink.tlog import TlogWriter
+from immukf_sitl.mavlink.wire import MavMessage, mavlink, open_tlog_reader
+from immukf_sitl.samples import ActuatorSample, GpsSample, ImuSample, TruthSample
 from immukf_sitl.scenario import FaultSpec
 
-MG_TO_MPS2 = 9.80665e-3
 FAULT_TEXT = re.compile(
     r"^FAULT (?P<end>END )?(?P<kind>\w+) (?P<channels>[xyzpqr+]+) t=(?P<t>[-\d.]+)"
     r"(?: v=(?P<v>[-+\deE.]+))?"
@@ -55,24 +55,6 @@ def fault_annotation(
 
 
 @dataclass(frozen=True)
-class TruthSample:
-    """The sim's truth at one step (from HIL_STATE_QUATERNION)."""
-
-    t_s: float
-    lat_deg: float
-    lon_deg: float
-    alt_m: float
-    euler_rad: np.ndarray
-    rates_radps: np.ndarray
-    velocity_ned_mps: np.ndarray
-    specific_force_mps2: np.ndarray
-
-    def channel(self, index: int) -> float:
-        """True value of IMU channel ``index`` (x, y, z specific force; p, q, r)."""
-        return float(self.specific_force_mps2[index] if index < 3 else self.rates_radps[index - 3])
-
-
-@dataclass(frozen=True)
 class FaultRecord:
     """A fault annotation of the proxy."""
 
@@ -96,21 +78,6 @@ class FlightLog:
     faults: list[FaultRecord] = field(default_factory=list)
     bad_records: int = 0
     scenario: str | None = None
-
-
-def truth_from_message(msg: MavMessage) -> TruthSample:
-    """HIL_STATE_QUATERNION to a :class:`TruthSample`."""
-    euler = codec.quaternion_to_euler(np.array(msg.attitude_quaternion, dtype=float))
-    return TruthSample(
-        t_s=msg.time_usec * 1e-6,
-        lat_deg=msg.lat * 1e-7,
-        lon_deg=msg.lon * 1e-7,
-        alt_m=msg.alt * 1e-3,
-        euler_rad=euler,
-        rates_radps=np.array([msg.rollspeed, msg.pitchspeed, msg.yawspeed]),
-        velocity_ned_mps=np.array([msg.vx, msg.vy, msg.vz]) / 100.0,
-        specific_force_mps2=np.array([msg.xacc, msg.yacc, msg.zacc]) * MG_TO_MPS2,
-    )
 
 
 def _messages(path: str | Path) -> Iterable[MavMessage]:
@@ -142,7 +109,7 @@ def read_flight_log(path: str | Path) -> FlightLog:
             elif kind == "SERVO_OUTPUT_RAW":
                 log.stream.append(codec.decode_servo_output_raw(msg))
             elif kind == "HIL_STATE_QUATERNION":
-                log.truth.append(truth_from_message(msg))
+                log.truth.append(codec.decode_truth(msg))
             elif kind == "STATUSTEXT":
                 named = SCENARIO_TEXT.match(msg.text)
                 if named and log.scenario is None:
@@ -229,3 +196,38 @@ def read_records(path: str | Path) -> list[tuple[float, bytes]]:
     finally:
         conn.close()
     return out
+
+
+def merge_flight_log(
+    proxy_tlog: Path, sim_tlog: Path, out_path: Path, truth_hz: float | None = None
+) -> int:
+    """flight.tlog = the proxy's forwarded stream and annotations + the sim's truth records.
+
+    Both logs are stamped with sim time; records are merged in time order (stream before truth
+    at equal times). ``truth_hz`` thins the truth to that rate. Returns the bytes written.
+    """
+    stream = read_records(proxy_tlog)
+    truth = []
+    next_truth_s = -1.0
+    period = 1.0 / truth_hz if truth_hz else 0.0
+    parser = mavlink.MAVLink(None)
+    parser.robust_parsing = True
+    for t_s, frame in read_records(sim_tlog):
+        msgs = parser.parse_buffer(frame) or []
+        kind = msgs[0].get_type() if msgs else ""
+        if kind == "HIL_STATE_QUATERNION":
+            if t_s + 1e-9 >= next_truth_s:
+                truth.append((t_s, frame))
+                next_truth_s = t_s + period
+        elif kind == "STATUSTEXT" and SCENARIO_TEXT.match(msgs[0].text):
+            truth.append((t_s, frame))
+    merged = sorted(
+        [(t, 0, i, f) for i, (t, f) in enumerate(stream)]
+        + [(t, 1, i, f) for i, (t, f) in enumerate(truth)]
+    )
+    size = 0
+    with TlogWriter(out_path) as writer:
+        for t_s, _, _, frame in merged:
+            writer.write(frame, t_s)
+            size += 8 + len(frame)
+    return size

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from immukf_sitl.estimation.fault_modes import FaultMode
-from immukf_sitl.mavlink.codec import euler_to_quaternion
+from immukf_sitl.mavlink.codec import euler_to_quaternion, heartbeat_message
 from immukf_sitl.mavlink.wire import MavMessage, mavlink
 from immukf_sitl.service.detection import DetectionEvent
 from immukf_sitl.service.pipeline import EstimateOutput
@@ -57,14 +57,7 @@ class _Every:
 
 def heartbeat() -> MavMessage:
     """The estimator's HEARTBEAT: onboard controller, no autopilot."""
-    return mavlink.MAVLink_heartbeat_message(
-        mavlink.MAV_TYPE_ONBOARD_CONTROLLER,
-        mavlink.MAV_AUTOPILOT_INVALID,
-        0,
-        0,
-        mavlink.MAV_STATE_ACTIVE,
-        3,
-    )
+    return heartbeat_message(mavlink.MAV_TYPE_ONBOARD_CONTROLLER)
 
 
 def event_messages(event: DetectionEvent) -> list[MavMessage]:

@@ -86,11 +86,6 @@ def connect(
     return conn
 
 
-def open_tlog_writer(path: str) -> mavutil.mavlogfile:
-    """A tlog to record into: each record an 8-byte big-endian microsecond time, then a frame."""
-    return mavutil.mavlink_connection(path, write=True, dialect=DIALECT)
-
-
 def open_tlog_reader(path: str) -> MavConnection:
     """A recorded tlog for reading (``recv_match`` until ``None``)."""
     return mavutil.mavlink_connection(path, dialect=DIALECT, robust_parsing=True)
