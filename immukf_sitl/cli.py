@@ -13,22 +13,28 @@ import sys
 from collections.abc import Sequence
 
 from immukf_sitl.errors import UserError
-from immukf_sitl.models.params import AircraftParamsError
 
-#: Modules that provide subcommands, in ``--help`` order.
-SUBCOMMAND_MODULES: tuple[str, ...] = (
-    "immukf_sitl.experiments.run",
-    "sim.emitter",
-    "sim.fault_proxy",
-    "immukf_sitl.mavlink.serve",
-    "immukf_sitl.experiments.replay",
-    "immukf_sitl.experiments.validate_model",
-    "immukf_sitl.experiments.bench",
-)
+#: Sub-commands in ``--help`` order: (name, module providing ``register``, one-line help).
+#: A module is imported only when its sub-command runs, so that ``--help`` and ``replay`` stay
+#: fast (the sim imports JSBSim, the estimator compiles numba kernels).
+SUBCOMMANDS: tuple[tuple[str, str, str], ...] = (
+    ("run", "immukf_sitl.experiments.run",
+     "fly a scenario through sim -> proxy -> serve on loopback and summarise"),
+    ("sim", "sim.emitter", "fly a scenario in JSBSim and send the sensor stream as MAVLink 2"),
+    ("proxy", "sim.fault_proxy",
+     "forward MAVLink from the sim to the estimator, injecting a scenario's IMU faults"),
+    ("serve", "immukf_sitl.mavlink.serve", "run the IMM-UKF estimator service on a MAVLink stream"),
+    ("replay", "immukf_sitl.experiments.replay",
+     "run the estimator over a recorded flight tlog and summarise"),
+    ("validate-model", "immukf_sitl.experiments.validate_model",
+     "score the filter's aerodynamic model against a JSBSim manoeuvring flight"),
+    ("bench", "immukf_sitl.experiments.bench", "time one IMM-UKF step (medians, ratios)"),
+)  # fmt: skip
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The full argument parser."""
+def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
+    """The argument parser; only the sub-command named in ``argv`` is imported and built."""
+    argv = list(sys.argv[1:] if argv is None else argv)
     parser = argparse.ArgumentParser(
         prog="immukf-sitl",
         description=(
@@ -38,24 +44,22 @@ def build_parser() -> argparse.ArgumentParser:
     )
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND")
     subparsers.required = True
-    for name in SUBCOMMAND_MODULES:
-        try:
-            module = importlib.import_module(name)
-        except ModuleNotFoundError as exc:
-            if exc.name != name:
-                raise
-            continue  # a subcommand not built yet
-        module.register(subparsers)
+    chosen = next((a for a in argv if not a.startswith("-")), None)
+    for name, module_name, help_text in SUBCOMMANDS:
+        if name == chosen:
+            importlib.import_module(module_name).register(subparsers)
+        else:
+            subparsers.add_parser(name, help=help_text)
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the console script."""
-    parser = build_parser()
+    parser = build_parser(argv)
     args = parser.parse_args(argv)
     try:
         return int(args.handler(args) or 0)
-    except (UserError, AircraftParamsError) as exc:
+    except UserError as exc:
         print(f"immukf-sitl {args.command}: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

@@ -69,6 +69,7 @@ from immukf_sitl.mavlink.wire import (
 )
 from immukf_sitl.models.params import Actuators
 from immukf_sitl.models.sensors import IMU_PERIOD_S
+from immukf_sitl.options import add_json_argument, add_link_arguments, add_tlog_argument
 from immukf_sitl.samples import ActuatorSample
 from immukf_sitl.scenario import load_scenario
 from sim.flight import Flight, FlightRecord
@@ -86,6 +87,8 @@ __all__ = [
     "register",
 ]
 
+#: Where the sim sends by default: the fault proxy's input.
+DEFAULT_OUT = "udpout:127.0.0.1:14560"
 #: Steps the sim may run ahead of the estimator's last acknowledgement.
 DEFAULT_WINDOW_STEPS = 10
 #: Seconds without an acknowledgement, while waiting for one, before the sim gives up.
@@ -482,11 +485,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         ),
     )
     parser.add_argument("scenario", metavar="SCENARIO", help="scenario YAML file")
-    parser.add_argument(
-        "--out",
-        default="udpout:127.0.0.1:14560",
-        metavar="URL",
-        help="where to send: udpout:HOST:PORT (default: %(default)s)",
+    add_link_arguments(
+        parser, None, DEFAULT_OUT, out_help="where to send: udpout:HOST:PORT (the proxy or serve)"
     )
     pacing = parser.add_mutually_exclusive_group()
     pacing.add_argument(
@@ -506,9 +506,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         metavar="X",
         help="with --realtime: X times real time (default 1)",
     )
-    parser.add_argument(
-        "--tlog", metavar="FILE", help="record every frame sent plus the truth to this tlog"
-    )
+    add_tlog_argument(parser, "every frame sent plus the truth")
     parser.add_argument(
         "--window",
         type=int,
@@ -530,9 +528,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         metavar="S",
         help="sim time to fly (s; default: the scenario's duration_s)",
     )
-    parser.add_argument(
-        "--json", action="store_true", help="print the summary as one JSON object on stdout"
-    )
+    add_json_argument(parser)
     parser.set_defaults(handler=run_sim)
 
 
@@ -549,9 +545,9 @@ def _check_args(args: argparse.Namespace) -> None:
         )
     if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0.0):
         raise UserError(f"--duration must be a positive number of seconds, got {args.duration}")
-    if not args.out.startswith("udpout:"):
+    if not args.out_url.startswith("udpout:"):
         raise UserError(
-            f"--out {args.out!r}: expected udpout:HOST:PORT (the sim sends there and hears the "
+            f"--out {args.out_url!r}: expected udpout:HOST:PORT (the sim sends there and hears the "
             "acknowledgements on the same socket)"
         )
 
@@ -565,7 +561,7 @@ def run_sim(args: argparse.Namespace) -> int:
     flight = flight_from_scenario(scenario)
     steps = int(round(duration_s / flight.driver.dt_s))
     try:
-        connection = connect(args.out, SIM_SYSTEM_ID, SIM_COMPONENT_ID, input_=False)
+        connection = connect(args.out_url, SIM_SYSTEM_ID, SIM_COMPONENT_ID, input_=False)
     except ConnectionError_ as exc:
         raise UserError(str(exc)) from None
     tlog = TlogWriter(args.tlog) if args.tlog else None
@@ -586,7 +582,7 @@ def run_sim(args: argparse.Namespace) -> int:
 
     previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     print(
-        f"sim: {scenario.name}, {duration_s:g} s, {mode} -> {args.out}"
+        f"sim: {scenario.name}, {duration_s:g} s, {mode} -> {args.out_url}"
         + (f", tlog {args.tlog}" if args.tlog else ""),
         file=sys.stderr,
         flush=True,

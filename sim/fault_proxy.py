@@ -68,6 +68,7 @@ from immukf_sitl.mavlink.wire import (
     mavlink,
 )
 from immukf_sitl.models.sensors import ImuSpec
+from immukf_sitl.options import add_json_argument, add_link_arguments, add_tlog_argument
 from immukf_sitl.samples import ImuSample
 from immukf_sitl.scenario import FaultSpec, Scenario, load_scenario
 
@@ -84,6 +85,11 @@ __all__ = [
 #: :class:`~sim.flight.Flight` spawns children 0 (IMU) and 1 (GPS); the proxy's stream is
 #: independent of both, and the same seed gives the same faulted stream.
 FAULT_STREAM_INDEX = 2
+
+#: Where the sim sends by default (the proxy listens there).
+DEFAULT_IN = "udpin:127.0.0.1:14560"
+#: The estimator's input by default.
+DEFAULT_OUT = "udpout:127.0.0.1:14561"
 
 
 def fault_rng(seed: int) -> np.random.Generator:
@@ -366,30 +372,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         ),
     )
     parser.add_argument("scenario", metavar="SCENARIO", help="scenario YAML file")
-    parser.add_argument(
-        "--in",
-        dest="in_url",
-        default="udpin:127.0.0.1:14560",
-        metavar="URL",
-        help="where the sim sends to (default: %(default)s)",
+    add_link_arguments(
+        parser,
+        DEFAULT_IN,
+        DEFAULT_OUT,
+        in_help="where the sim sends to",
+        out_help="the estimator's input",
     )
-    parser.add_argument(
-        "--out",
-        dest="out_url",
-        default="udpout:127.0.0.1:14561",
-        metavar="URL",
-        help="the estimator's input (default: %(default)s)",
-    )
-    parser.add_argument(
-        "--tlog",
-        metavar="FILE",
-        help="record the stream as forwarded (faults included) with fault annotations",
-    )
-    parser.add_argument(
-        "--json",
-        action="store_true",
-        help="print the counts as one JSON object on stdout at exit",
-    )
+    add_tlog_argument(parser, "the stream as forwarded (faults included) with fault annotations")
+    add_json_argument(parser, "the counts at exit")
     parser.set_defaults(handler=run_proxy)
 
 

@@ -142,7 +142,7 @@ def test_run_with_mavproxy_ground_station(tmp_path: Path) -> None:
                 "--gcs",
                 f"udpout:127.0.0.1:{port}",
                 "--json",
-                "--out",
+                "--out-dir",
                 str(run_dir),
             ],  # fmt: skip
             cwd=REPO,

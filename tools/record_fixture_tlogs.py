@@ -31,7 +31,7 @@ def main() -> int:
         with tempfile.TemporaryDirectory() as tmp:
             subprocess.run(
                 [sys.executable, "-m", "immukf_sitl.cli", "run", str(ROOT / scenario),
-                 "--duration", str(DURATION_S), "--out", tmp],
+                 "--duration", str(DURATION_S), "--out-dir", tmp],
                 check=True,
             )  # fmt: skip
             shutil.copy(Path(tmp) / "flight.tlog", data / name)

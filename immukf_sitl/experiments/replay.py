@@ -25,7 +25,7 @@ from immukf_sitl.experiments.report import (
     summarize,
 )
 from immukf_sitl.mavlink.flightlog import FlightLog, read_flight_log
-from immukf_sitl.mavlink.serve import add_filter_arguments, pipeline_from_args
+from immukf_sitl.options import FilterOptions, add_json_argument
 from immukf_sitl.samples import ActuatorSample, GpsSample, ImuSample
 from immukf_sitl.service.pipeline import EstimateOutput, EstimatorPipeline
 
@@ -121,14 +121,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         ),
     )
     parser.add_argument("tlog", help="flight tlog to replay")
-    parser.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    add_json_argument(parser)
     parser.add_argument("--plot", default=None, help="also write a PNG of the mode probabilities")
-    add_filter_arguments(parser)
+    FilterOptions.add_arguments(parser)
     parser.set_defaults(handler=_main)
 
 
 def _main(args: argparse.Namespace) -> int:
-    pipeline = pipeline_from_args(args)
+    options = FilterOptions.from_args(args)
+    pipeline = options.pipeline()
     if args.plot and not Path(args.plot).resolve().parent.is_dir():
         raise UserError(f"--plot {args.plot}: no such directory")
     log = read_flight_log(args.tlog)
@@ -142,7 +143,7 @@ def _main(args: argparse.Namespace) -> int:
     name = log.scenario or Path(args.tlog).stem
     summary = summary_of(result, name)
     summary["tlog"] = str(args.tlog)
-    summary["variant"] = args.variant
+    summary["variant"] = options.variant
     if not log.truth:
         summary["note"] = "no truth in the log: estimation errors unavailable"
     print(human_summary(summary), file=sys.stderr)

@@ -28,7 +28,6 @@ from typing import TextIO
 import numpy as np
 
 from immukf_sitl.errors import UserError
-from immukf_sitl.estimation.fault_modes import FaultMode
 from immukf_sitl.mavlink import codec
 from immukf_sitl.mavlink.publish import OutputRates, Publisher, heartbeat
 from immukf_sitl.mavlink.tlog import TlogWriter
@@ -41,10 +40,14 @@ from immukf_sitl.mavlink.wire import (
     connect,
     mavlink,
 )
-from immukf_sitl.models.params import load_aircraft_params
-from immukf_sitl.service.detection import DetectionEvent, DetectorConfig
-from immukf_sitl.service.filters import VARIANTS, FilterTuning
-from immukf_sitl.service.pipeline import EstimateOutput, EstimatorPipeline, PipelineConfig
+from immukf_sitl.options import (
+    FilterOptions,
+    add_json_argument,
+    add_link_arguments,
+    add_tlog_argument,
+)
+from immukf_sitl.service.detection import DetectionEvent
+from immukf_sitl.service.pipeline import EstimateOutput, EstimatorPipeline
 
 HELP = """\
 Run the IMM-UKF estimator on a MAVLink stream and publish its results.
@@ -311,92 +314,6 @@ def _event_dict(event: DetectionEvent) -> dict:
 # -- command line ----------------------------------------------------------------------------
 
 
-def add_filter_arguments(parser: argparse.ArgumentParser) -> None:
-    """Options shared by ``serve`` and ``replay``: variant, tuning and detection."""
-    tuning, detector = FilterTuning(), DetectorConfig()
-    group = parser.add_argument_group("filter and detection")
-    group.add_argument(
-        "--variant",
-        choices=VARIANTS,
-        default="imm",
-        help="paper's filter variant: ukf1 (aero model matched to --true-mode), ukf2 (aero "
-        "model, fault-free), ukf3 (INS equations, fault-free), imm (UKF-4, 7 modes; default)",
-    )
-    group.add_argument(
-        "--true-mode", default=None, help="fault mode UKF-1 is matched to (e.g. q, x+q)"
-    )
-    group.add_argument(
-        "--threshold",
-        type=float,
-        default=detector.threshold,
-        help=f"mode probability that declares a fault (default {detector.threshold})",
-    )
-    group.add_argument(
-        "--dwell",
-        type=float,
-        default=detector.dwell_s,
-        help=f"seconds above the threshold before declaring (default {detector.dwell_s})",
-    )
-    group.add_argument(
-        "--clear-threshold",
-        type=float,
-        default=detector.clear_threshold,
-        help="probability below which a declared fault clears "
-        f"(default {detector.clear_threshold})",
-    )
-    group.add_argument(
-        "--clear-dwell",
-        type=float,
-        default=detector.clear_dwell_s,
-        help="seconds below the clear threshold before clearing "
-        f"(default {detector.clear_dwell_s})",
-    )
-    group.add_argument(
-        "--settle",
-        type=float,
-        default=detector.settle_s,
-        help=f"seconds after alignment with no declarations (default {detector.settle_s})",
-    )
-    group.add_argument(
-        "--recovery-probability",
-        type=float,
-        default=tuning.recovery_probability,
-        help="per-step Markov probability fault -> fault-free (default "
-        f"{tuning.recovery_probability}; see README 'Tuning')",
-    )
-    group.add_argument(
-        "--params", default=None, help="aircraft parameter YAML (default: the packaged Aerosonde)"
-    )
-
-
-def pipeline_from_args(args: argparse.Namespace) -> EstimatorPipeline:
-    """Build the pipeline the options describe; user mistakes become :class:`UserError`."""
-    true_mode = None
-    if args.variant == "ukf1":
-        if not args.true_mode:
-            raise UserError("--variant ukf1 needs --true-mode (the fault mode it is matched to)")
-        try:
-            true_mode = FaultMode.from_name(args.true_mode)
-        except ValueError as exc:
-            raise UserError(f"--true-mode: {exc}") from None
-    try:
-        detector = DetectorConfig(
-            threshold=args.threshold,
-            dwell_s=args.dwell,
-            clear_threshold=args.clear_threshold,
-            clear_dwell_s=args.clear_dwell,
-            settle_s=args.settle,
-        )
-        tuning = FilterTuning(recovery_probability=args.recovery_probability)
-        tuning.transition((FaultMode(0), FaultMode(1)))
-    except ValueError as exc:
-        raise UserError(str(exc)) from None
-    config = PipelineConfig(
-        variant=args.variant, true_mode=true_mode, tuning=tuning, detector=detector
-    )
-    return EstimatorPipeline(load_aircraft_params(args.params), config)
-
-
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the ``serve`` subcommand."""
     parser = subparsers.add_parser(
@@ -405,19 +322,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description=HELP,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    parser.add_argument(
-        "--in",
-        dest="inbound",
-        default=DEFAULT_IN,
-        help=f"sensor stream, a pymavlink connection string (default {DEFAULT_IN})",
+    add_link_arguments(
+        parser,
+        DEFAULT_IN,
+        DEFAULT_OUT,
+        in_help="sensor stream, a pymavlink connection string",
+        out_help="ground station to publish to",
+        repeat_out=True,
     )
-    parser.add_argument(
-        "--out",
-        action="append",
-        default=None,
-        help=f"ground station to publish to; repeat for several (default {DEFAULT_OUT})",
-    )
-    parser.add_argument("--tlog", default=None, help="also record every published message here")
+    add_tlog_argument(parser, "every published message")
     parser.add_argument(
         "--attitude-hz", type=float, default=OutputRates.attitude_hz, help="ATTITUDE rate"
     )
@@ -442,24 +355,24 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         default=0.0,
         help="exit once input has stopped for this many seconds (default 0: run until interrupted)",
     )
-    parser.add_argument(
-        "--json", action="store_true", help="print one JSON object of statistics at exit"
-    )
-    add_filter_arguments(parser)
+    add_json_argument(parser, "the statistics at exit")
+    FilterOptions.add_arguments(parser)
     parser.set_defaults(handler=_main)
 
 
 def _main(args: argparse.Namespace) -> int:
-    pipeline = pipeline_from_args(args)
+    options = FilterOptions.from_args(args)
+    pipeline = options.pipeline()
+    out_urls = args.out_url or [DEFAULT_OUT]
     for name in ("attitude_hz", "position_hz", "probabilities_hz"):
         if not 0.0 < getattr(args, name) <= 100.0 or not math.isfinite(getattr(args, name)):
             raise UserError(f"--{name.replace('_', '-')}: expected a rate in (0, 100] Hz")
     rates = OutputRates(args.attitude_hz, args.position_hz, args.probabilities_hz)
     try:
-        inbound = connect(args.inbound, ESTIMATOR_SYSTEM_ID, ESTIMATOR_COMPONENT_ID)
+        inbound = connect(args.in_url, ESTIMATOR_SYSTEM_ID, ESTIMATOR_COMPONENT_ID)
         outbound = [
             connect(url, ESTIMATOR_SYSTEM_ID, ESTIMATOR_COMPONENT_ID, input_=False)
-            for url in (args.out or [DEFAULT_OUT])
+            for url in out_urls
         ]
     except ConnectionError_ as exc:
         raise UserError(str(exc)) from None
@@ -475,7 +388,7 @@ def _main(args: argparse.Namespace) -> int:
         signal.signal(sig, lambda *_: service.stop())
     pipeline.warm_up()
     print(
-        f"serve: ready: {args.variant} on {args.inbound} -> {', '.join(args.out or [DEFAULT_OUT])}",
+        f"serve: ready: {options.variant} on {args.in_url} -> {', '.join(out_urls)}",
         file=sys.stderr,
         flush=True,
     )

@@ -20,6 +20,8 @@ from typing import Any, ClassVar
 import numpy as np
 import yaml
 
+from immukf_sitl.errors import UserError
+
 __all__ = [
     "AeroCoefficients",
     "AircraftParams",
@@ -38,7 +40,7 @@ __all__ = [
 MAX_SERVO_CHANNEL = 16
 
 
-class AircraftParamsError(ValueError):
+class AircraftParamsError(UserError, ValueError):
     """A missing, unknown, mistyped or non-physical aircraft parameter.
 
     Parameters

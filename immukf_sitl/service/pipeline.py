@@ -31,14 +31,10 @@ from immukf_sitl.models.earth import NedOrigin, geodetic_to_ned, ned_to_geodetic
 from immukf_sitl.models.params import AircraftParams
 from immukf_sitl.models.sensors import IMU_PERIOD_S, SensorSpec
 from immukf_sitl.samples import ActuatorSample, GpsSample, ImuSample
+from immukf_sitl.service.alignment import NavSolution, align
 from immukf_sitl.service.detection import DetectionEvent, DetectorConfig, FaultDetector
-from immukf_sitl.service.filters import (
-    Estimator,
-    FilterTuning,
-    NavSolution,
-    align,
-    build_estimator,
-)
+from immukf_sitl.service.filters import Estimator, build_estimator
+from immukf_sitl.service.tuning import FilterTuning
 
 
 @dataclass(frozen=True)
@@ -144,7 +140,6 @@ class EstimatorPipeline:
         does it before it reports ready, so that its first real sample is not late.
         """
         from immukf_sitl.models.aero import AeroModel
-        from immukf_sitl.service.filters import align
 
         origin = NedOrigin(0.0, 0.0, 100.0)
         x0, u0 = AeroModel(self.params, origin).trim(25.0)

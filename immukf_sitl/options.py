@@ -1,0 +1,309 @@
+"""Command-line options shared by sub-commands, as frozen records with one ``add_arguments`` /
+``from_args`` pair each.
+
+Library code takes these records, never an ``argparse.Namespace``. One meaning per flag name
+across every sub-command:
+
+- ``--in URL`` / ``--out URL``: MAVLink connections (``udpin:HOST:PORT``, ``udpout:HOST:PORT``);
+  ``serve`` may repeat ``--out`` (one per ground station);
+- ``--out-dir DIR``: a directory the command writes its results into;
+- ``--tlog FILE``: a tlog the command records into;
+- ``--json``: one JSON object on stdout, everything for people on stderr.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+
+from immukf_sitl.errors import UserError
+from immukf_sitl.estimation.fault_modes import FaultMode
+from immukf_sitl.models.params import load_aircraft_params
+from immukf_sitl.service.detection import DetectorConfig
+from immukf_sitl.service.filters import VARIANTS
+from immukf_sitl.service.pipeline import EstimatorPipeline, PipelineConfig
+from immukf_sitl.service.tuning import FilterTuning
+
+__all__ = [
+    "FilterOptions",
+    "RunOptions",
+    "add_json_argument",
+    "add_link_arguments",
+    "add_tlog_argument",
+]
+
+
+def add_json_argument(parser: argparse.ArgumentParser, what: str = "the summary") -> None:
+    """``--json``: print ``what`` as one JSON object on stdout."""
+    parser.add_argument(
+        "--json", action="store_true", help=f"print {what} as one JSON object on stdout"
+    )
+
+
+def add_tlog_argument(parser: argparse.ArgumentParser, what: str) -> None:
+    """``--tlog FILE``: record ``what`` into a tlog."""
+    parser.add_argument("--tlog", metavar="FILE", default=None, help=f"record {what} to FILE")
+
+
+def add_link_arguments(
+    parser: argparse.ArgumentParser,
+    in_default: str | None,
+    out_default: str,
+    in_help: str = "",
+    out_help: str = "",
+    repeat_out: bool = False,
+) -> None:
+    """``--in URL`` (dest ``in_url``, if ``in_default`` is given) and ``--out URL`` (``out_url``).
+
+    With ``repeat_out`` the ``--out`` option may be given several times and ``out_url`` is a
+    list (default ``[out_default]``, filled in by the caller when the user gave none).
+    """
+    if in_default is not None:
+        parser.add_argument(
+            "--in",
+            dest="in_url",
+            metavar="URL",
+            default=in_default,
+            help=f"{in_help} (default: %(default)s)",
+        )
+    if repeat_out:
+        parser.add_argument(
+            "--out",
+            dest="out_url",
+            metavar="URL",
+            action="append",
+            default=None,
+            help=f"{out_help}; repeat for several (default: {out_default})",
+        )
+    else:
+        parser.add_argument(
+            "--out",
+            dest="out_url",
+            metavar="URL",
+            default=out_default,
+            help=f"{out_help} (default: %(default)s)",
+        )
+
+
+@dataclass(frozen=True)
+class FilterOptions:
+    """Which filter runs and how it decides: the options of ``serve``, ``replay`` and ``run``.
+
+    Attributes
+    ----------
+    variant : str
+        ``ukf1``, ``ukf2``, ``ukf3`` or ``imm`` (the paper's UKF-1 to UKF-4).
+    true_mode : FaultMode or None
+        The mode UKF-1 is matched to.
+    detector : DetectorConfig
+        Declaration and clearing thresholds and dwells, settling time.
+    tuning : FilterTuning
+        Process noise and the Markov chain.
+    params_path : str or None
+        Aircraft parameter YAML (None: the packaged Aerosonde).
+    """
+
+    variant: str = "imm"
+    true_mode: FaultMode | None = None
+    detector: DetectorConfig = field(default_factory=DetectorConfig)
+    tuning: FilterTuning = field(default_factory=FilterTuning)
+    params_path: str | None = None
+
+    #: (flag, record, attribute, help): the numeric options, each written once
+    _NUMERIC = (
+        ("--threshold", "detector", "threshold", "mode probability that declares a fault"),
+        ("--dwell", "detector", "dwell_s", "seconds above the threshold before declaring"),
+        (
+            "--clear-threshold",
+            "detector",
+            "clear_threshold",
+            "probability below which a declared fault clears",
+        ),
+        (
+            "--clear-dwell",
+            "detector",
+            "clear_dwell_s",
+            "seconds below the clear threshold before clearing",
+        ),
+        ("--settle", "detector", "settle_s", "seconds after alignment with no declarations"),
+        (
+            "--recovery-probability",
+            "tuning",
+            "recovery_probability",
+            "per-step Markov probability fault -> fault-free (README 'Detection and tuning')",
+        ),
+    )
+
+    @classmethod
+    def add_arguments(cls, parser: argparse.ArgumentParser) -> None:
+        """Add the filter and detection options (defaults from the records)."""
+        defaults = {"detector": DetectorConfig(), "tuning": FilterTuning()}
+        group = parser.add_argument_group("filter and detection")
+        group.add_argument(
+            "--variant",
+            choices=VARIANTS,
+            default="imm",
+            help="the paper's filter variant: ukf1 (aero model matched to --true-mode), ukf2 "
+            "(aero model, fault-free), ukf3 (INS equations, fault-free), imm (UKF-4, 7 modes; "
+            "default)",
+        )
+        group.add_argument(
+            "--true-mode", default=None, help="fault mode UKF-1 is matched to (e.g. q, x+q)"
+        )
+        for flag, record, attribute, text in cls._NUMERIC:
+            default = getattr(defaults[record], attribute)
+            group.add_argument(
+                flag,
+                dest=attribute,
+                type=float,
+                default=default,
+                help=f"{text} (default {default})",
+            )
+        group.add_argument(
+            "--params",
+            dest="params_path",
+            default=None,
+            metavar="FILE",
+            help="aircraft parameter YAML (default: the packaged Aerosonde)",
+        )
+
+    @classmethod
+    def from_args(cls, args: argparse.Namespace) -> FilterOptions:
+        """The record of parsed options; a user mistake raises :class:`UserError`."""
+        true_mode = None
+        if args.variant == "ukf1":
+            if not args.true_mode:
+                raise UserError("--variant ukf1 needs --true-mode (the mode it is matched to)")
+            try:
+                true_mode = FaultMode.from_name(args.true_mode)
+            except ValueError as exc:
+                raise UserError(f"--true-mode: {exc}") from None
+        values: dict[str, dict[str, float]] = {"detector": {}, "tuning": {}}
+        for flag, record, attribute, _ in cls._NUMERIC:
+            value = getattr(args, attribute)
+            if not math.isfinite(value):
+                raise UserError(f"{flag}: expected a finite number, got {value}")
+            values[record][attribute] = value
+        try:
+            detector = DetectorConfig(**values["detector"])
+            tuning = FilterTuning(**values["tuning"])
+            tuning.transition((FaultMode(0), FaultMode(1)))  # validates the chain
+        except ValueError as exc:
+            raise UserError(str(exc)) from None
+        if args.params_path is not None and not Path(args.params_path).is_file():
+            raise UserError(f"--params {args.params_path}: no such file")
+        return cls(args.variant, true_mode, detector, tuning, args.params_path)
+
+    def pipeline(self) -> EstimatorPipeline:
+        """The estimator pipeline these options describe (aircraft from ``params_path``)."""
+        config = PipelineConfig(
+            variant=self.variant,
+            true_mode=self.true_mode,
+            tuning=self.tuning,
+            detector=self.detector,
+        )
+        return EstimatorPipeline(load_aircraft_params(self.params_path), config)
+
+    def to_argv(self) -> list[str]:
+        """The same options as command-line arguments (``run`` passes them to ``serve``)."""
+        argv = ["--variant", self.variant]
+        if self.true_mode is not None:
+            argv += ["--true-mode", self.true_mode.name]
+        for flag, record, attribute, _ in self._NUMERIC:
+            argv += [flag, repr(getattr(getattr(self, record), attribute))]
+        if self.params_path is not None:
+            argv += ["--params", self.params_path]
+        return argv
+
+
+@dataclass(frozen=True)
+class RunOptions:
+    """How ``run`` flies a scenario through the three processes.
+
+    Attributes
+    ----------
+    scenario_path : str
+    out_dir : Path or None
+        Where the run's files go (None: ``out/<scenario name>``).
+    realtime : bool
+        Pace the sim to the wall clock (times ``speed``).
+    speed : float or None
+    duration_s : float or None
+        Fly this long instead of the scenario's ``duration_s``.
+    gcs : tuple of str
+        Extra ground stations the estimator publishes to.
+    truth_hz : float or None
+        Thin the truth in ``flight.tlog`` to this rate.
+    keep_intermediate : bool
+        Keep ``sim.tlog`` and ``proxy.tlog``.
+    verbose : bool
+        Echo the children's stderr.
+    filter : FilterOptions
+    """
+
+    scenario_path: str
+    out_dir: Path | None = None
+    realtime: bool = False
+    speed: float | None = None
+    duration_s: float | None = None
+    gcs: tuple[str, ...] = ()
+    truth_hz: float | None = None
+    keep_intermediate: bool = False
+    verbose: bool = False
+    filter: FilterOptions = field(default_factory=FilterOptions)
+
+    @staticmethod
+    def add_arguments(parser: argparse.ArgumentParser) -> None:
+        """Add ``run``'s options (the filter's included)."""
+        parser.add_argument("scenario_path", metavar="SCENARIO", help="scenario YAML file")
+        parser.add_argument(
+            "--out-dir",
+            default=None,
+            metavar="DIR",
+            help="directory for the run's files (default out/<scenario name>)",
+        )
+        add_json_argument(parser)
+        parser.add_argument(
+            "--realtime", action="store_true", help="pace the sim to the wall clock (for watching)"
+        )
+        parser.add_argument("--speed", type=float, default=None, help="with --realtime: X times")
+        parser.add_argument(
+            "--duration", dest="duration_s", type=float, default=None, help="override duration_s"
+        )
+        parser.add_argument(
+            "--gcs",
+            action="append",
+            default=None,
+            metavar="URL",
+            help="also publish to this ground station (e.g. udpout:127.0.0.1:14550); repeatable",
+        )
+        parser.add_argument(
+            "--truth-hz",
+            type=float,
+            default=None,
+            help="thin the truth in flight.tlog to this rate (default: every step)",
+        )
+        parser.add_argument(
+            "--keep-intermediate",
+            action="store_true",
+            help="keep sim.tlog and proxy.tlog beside the merged flight.tlog",
+        )
+        parser.add_argument("--verbose", action="store_true", help="echo the children's stderr")
+        FilterOptions.add_arguments(parser)
+
+    @classmethod
+    def from_args(cls, args: argparse.Namespace) -> RunOptions:
+        """The record of parsed options; range checks that need no scenario raise here."""
+        if args.speed is not None and (not args.realtime or not 0.0 < args.speed <= 100.0):
+            raise UserError("--speed: expected a factor in (0, 100], with --realtime")
+        if args.truth_hz is not None and not 0.0 < args.truth_hz <= 100.0:
+            raise UserError(f"--truth-hz: expected a rate in (0, 100], got {args.truth_hz}")
+        names = {f.name for f in fields(cls)} - {"filter", "out_dir", "gcs"}
+        return cls(
+            out_dir=Path(args.out_dir) if args.out_dir else None,
+            gcs=tuple(args.gcs or ()),
+            filter=FilterOptions.from_args(args),
+            **{name: getattr(args, name) for name in names},
+        )
