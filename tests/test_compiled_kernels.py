@@ -1,7 +1,13 @@
-"""The compiled UKF/IMM kernels agree with the numpy reference, and count the same safeguards."""
+"""The filter's kernels: compiled equals interpreted, and both equal independent numpy maths.
 
-import importlib.util
+:mod:`immukf_sitl.estimation.kernels` is the only implementation of the filter's arithmetic. Each
+kernel is checked twice here: against the same source run by the interpreter
+(``load_kernels("python")``, numba disabled; the two must agree to rounding), and against the
+textbook formula written with numpy arrays in this file (LAPACK Cholesky, explicit gains and
+inverses). Whole filters then run compiled and interpreted side by side, safeguards included.
+"""
 
+import numba
 import numpy as np
 import pytest
 from toy_systems import (
@@ -20,26 +26,24 @@ from immukf_sitl.estimation import (
     ScaledSigmaPoints,
     UnscentedKalmanFilter,
     fault_masked_output,
-    sigma_points,
     single_fault_modes,
     sticky_transition,
-    unscented_transform,
 )
+from immukf_sitl.estimation import kernels as compiled_kernels
 from immukf_sitl.estimation.angles import wrap_angle
-from immukf_sitl.estimation.imm import logsumexp
-from immukf_sitl.estimation.linalg import block_diagonal, symmetrise
+from immukf_sitl.estimation.ukf import load_kernels
 
-pytestmark = pytest.mark.skipif(
-    importlib.util.find_spec("numba") is None, reason="numba not installed"
-)
+#: Compiled against interpreted: the same operations in the same order, so rounding only.
+SAME = 1e-13
+#: Kernels against the numpy formulas here (other summation orders, LAPACK).
 RTOL = 1e-12
+LOG_2PI = np.log(2.0 * np.pi)
 
 
-@pytest.fixture(scope="module")
-def kernels():
-    from immukf_sitl.estimation import _kernels_numba
-
-    return _kernels_numba
+@pytest.fixture(scope="module", params=["numba", "python"])
+def kern(request):
+    """Each kernel test runs on the compiled module and on its interpreted copy."""
+    return load_kernels(request.param)
 
 
 def random_covariances(rng, batch, n, scale=1.0):
@@ -53,19 +57,101 @@ def angle_mask(n, angle_idx):
     return mask
 
 
-def test_factor_is_symmetrise_then_cholesky(kernels):
+# -- the numpy formulas the kernels must reproduce ---------------------------------------------
+
+
+def np_sigma_points(mean, sqrt_cov, spread):
+    """Eq. (11) with numpy: columns [x, x + c L, x - c L], layout (n, B, 2n + 1)."""
+    centre = mean[:, :, None]
+    offsets = spread * sqrt_cov
+    return np.concatenate([centre, centre + offsets, centre - offsets], axis=2).transpose(1, 0, 2)
+
+
+def np_moments(points, weights, angle_idx=()):
+    """Eqs. (16)-(18) with numpy: weighted mean (circular for angles), residuals, covariance."""
+    mean = points @ weights.mean_weights
+    for i in angle_idx:
+        mean[i] = np.arctan2(
+            np.sin(points[i]) @ weights.mean_weights, np.cos(points[i]) @ weights.mean_weights
+        )
+    res = points - mean[:, :, None]
+    for i in angle_idx:
+        res[i] = wrap_angle(res[i])
+    res = res.transpose(1, 0, 2)
+    cov = np.einsum("bis,s,bjs->bij", res, weights.cov_weights, res)
+    return mean.T, cov, res
+
+
+def np_kalman_update(pred_mean, pred_cov, x_res, z_points, weights, z, add_r, z_angle, x_angle):
+    """Eqs. (19)-(25) with an explicit gain and inverse."""
+    z_mean, z_cov, z_res = np_moments(z_points, weights, z_angle)
+    z_cov = z_cov + add_r
+    cross = np.einsum("bis,s,bjs->bij", x_res, weights.cov_weights, z_res)  # P_xz
+    innovation = z[None] - z_mean
+    for i in z_angle:
+        innovation[:, i] = wrap_angle(innovation[:, i])
+    gain = cross @ np.linalg.inv(z_cov)
+    new_mean = pred_mean + np.einsum("bij,bj->bi", gain, innovation)
+    for i in x_angle:
+        new_mean[:, i] = wrap_angle(new_mean[:, i])
+    new_cov = pred_cov - gain @ z_cov @ gain.transpose(0, 2, 1)
+    nis = np.einsum("bi,bij,bj->b", innovation, np.linalg.inv(z_cov), innovation)
+    log_lik = -0.5 * (nis + np.log(np.linalg.det(2 * np.pi * z_cov)))
+    return dict(
+        z_cov=z_cov, cross=cross.transpose(0, 2, 1), innovation=innovation, new_mean=new_mean,
+        new_cov=new_cov, nis=nis, log_lik=log_lik,
+    )  # fmt: skip
+
+
+def assert_close(actual, expected, rtol=RTOL):
+    """Elementwise, relative to the array's largest entry (covariances mix scales)."""
+    expected = np.asarray(expected)
+    np.testing.assert_allclose(actual, expected, rtol=0.0, atol=rtol * np.max(np.abs(expected)))
+
+
+# -- the two forms of the kernels ---------------------------------------------------------------
+
+
+def test_interpreted_kernels_are_the_same_source_without_numba():
+    interpreted = load_kernels("python")
+    assert isinstance(compiled_kernels.update, numba.core.registry.CPUDispatcher)
+    assert not isinstance(interpreted.update, numba.core.registry.CPUDispatcher)
+    assert interpreted.update.__code__.co_code == compiled_kernels.update.py_func.__code__.co_code
+    # helpers too: every kernel calls plain Python functions when interpreted
+    assert not isinstance(interpreted._gain_update, numba.core.registry.CPUDispatcher)
+    assert load_kernels("auto") is load_kernels("numba") is compiled_kernels
+
+
+@pytest.mark.parametrize("backend", ["cuda", "numpy"])
+def test_unknown_backend_is_rejected(backend):
+    with pytest.raises(ValueError, match="backend must be"):
+        UnscentedKalmanFilter(constant_velocity().process(), backend=backend)
+
+
+def test_wrap_angle_is_the_kernel_formula_on_arrays():
+    angles = np.array([-7.0, -np.pi, -1.0, 0.0, np.pi - 1e-12, np.pi, 4.0, 10.0])
+    wrapped = wrap_angle(angles)
+    assert np.all((wrapped >= -np.pi) & (wrapped < np.pi))
+    np.testing.assert_allclose(np.cos(wrapped), np.cos(angles), atol=1e-12)
+    assert [compiled_kernels.wrap(a) for a in angles] == list(wrapped)
+
+
+# -- kernel by kernel, against numpy ------------------------------------------------------------
+
+
+def test_factor_is_symmetrise_then_cholesky(kern):
     rng = np.random.default_rng(1)
     cov = random_covariances(rng, 7, 12)
     cov[:, 0, 1] += 1e-9  # asymmetric input
     sym, chol = np.empty_like(cov), np.empty_like(cov)
-    assert kernels.factor(cov, sym, chol)
-    assert np.array_equal(sym, symmetrise(cov))
+    assert kern.factor(cov, sym, chol)
+    assert np.array_equal(sym, 0.5 * (cov + cov.transpose(0, 2, 1)))
     np.testing.assert_allclose(chol, np.linalg.cholesky(sym), rtol=RTOL, atol=1e-14)
     assert np.all(np.triu(chol, 1) == 0.0)
 
 
 @pytest.mark.parametrize("defect", ["indefinite", "nan", "singular"])
-def test_factor_hands_doubtful_matrices_to_the_repair(kernels, defect):
+def test_factor_hands_doubtful_matrices_to_the_repair(kern, defect):
     cov = random_covariances(np.random.default_rng(2), 3, 5)
     if defect == "indefinite":
         cov[1] = np.diag([1.0, -5.0, 2.0, 1.0, 1.0])
@@ -74,19 +160,19 @@ def test_factor_hands_doubtful_matrices_to_the_repair(kernels, defect):
     else:
         v = np.arange(1.0, 6.0)
         cov[1] = np.outer(v, v)  # rank one: a pivot of rounding size
-    assert not kernels.factor(cov, np.empty_like(cov), np.empty_like(cov))
+    assert not kern.factor(cov, np.empty_like(cov), np.empty_like(cov))
 
 
-def test_sigma_points_are_the_numpy_points(kernels):
+def test_state_points_are_eq_11(kern):
     rng = np.random.default_rng(3)
     mean = rng.standard_normal((7, 12))
     chol = np.linalg.cholesky(random_covariances(rng, 7, 12))
     out = np.empty((12, 7, 25))
-    kernels.state_points(mean, chol, 3.5, out)
-    assert np.array_equal(out, sigma_points(mean, chol, 3.5))
+    kern.state_points(mean, chol, 3.5, out)
+    assert np.array_equal(out, np_sigma_points(mean, chol, 3.5))
 
 
-def test_augmented_process_points_are_the_distinct_numpy_points(kernels):
+def test_augmented_points_are_the_sigma_points_of_the_stacked_state(kern):
     rng = np.random.default_rng(4)
     nx, nv, nw, batch = 12, 6, 5, 7
     mean = rng.standard_normal((batch, nx))
@@ -95,19 +181,30 @@ def test_augmented_process_points_are_the_distinct_numpy_points(kernels):
     sqrt_w = np.linalg.cholesky(random_covariances(rng, 1, nw)[0])
     n_aug = nx + nv + nw
     spread = np.sqrt(n_aug)
+    # eqs. (9)-(10): zero noise means, block-diagonal square root
     mean_aug = np.zeros((batch, n_aug))
     mean_aug[:, :nx] = mean
-    full = sigma_points(mean_aug, block_diagonal([chol, sqrt_v, sqrt_w], batch), spread)
+    sqrt_aug = np.zeros((batch, n_aug, n_aug))
+    sqrt_aug[:, :nx, :nx] = chol
+    sqrt_aug[:, nx : nx + nv, nx : nx + nv] = sqrt_v
+    sqrt_aug[:, nx + nv :, nx + nv :] = sqrt_w
+    full = np_sigma_points(mean_aug, sqrt_aug, spread)
     distinct = np.r_[0, 1 : 1 + nx + nv, 1 + n_aug : 1 + n_aug + nx + nv]
     x_out = np.empty((nx, batch, distinct.size))
     v_out = np.empty((nv, batch, distinct.size))
-    kernels.augmented_process_points(mean, chol, sqrt_v, spread, x_out, v_out)
+    kern.augmented_process_points(mean, chol, sqrt_v, spread, x_out, v_out)
     assert np.array_equal(x_out, full[:nx][:, :, distinct])
     assert np.array_equal(v_out, full[nx : nx + nv][:, :, distinct])
+    # the columns left out repeat the centre's (x, v)
+    others = np.setdiff1d(np.arange(2 * n_aug + 1), distinct)
+    assert np.array_equal(full[: nx + nv][:, :, others], np.repeat(full[: nx + nv, :, :1], 10, 2))
+    w_out = np.empty((nw, batch, 2 * n_aug + 1))
+    kern.measurement_noise_points(sqrt_w, spread, nx + nv, w_out)
+    assert np.array_equal(w_out, full[nx + nv :])
 
 
 @pytest.mark.parametrize("duplicated", [False, True])
-def test_predict_moments_is_the_unscented_transform(kernels, duplicated):
+def test_predict_moments_are_eqs_16_to_18(kern, duplicated):
     rng = np.random.default_rng(5)
     nx, batch, n_aug = 4, 3, 6
     weights = ScaledSigmaPoints(alpha=0.8, beta=2.0, kappa=1.0).weights(n_aug)
@@ -120,50 +217,127 @@ def test_predict_moments_is_the_unscented_transform(kernels, duplicated):
     moved[1] = np.pi - 0.05 + 0.1 * rng.random((batch, source.max() + 1))  # straddles +-pi
     moved[1] = wrap_angle(moved[1])
     added = np.diag([0.1, 0.2, 0.3, 0.4])
-    angle = angle_mask(nx, (1,))
     x_points = np.empty((nx, batch, n_sigma))
     mean = np.empty((batch, nx))
     cov = np.empty((batch, nx, nx))
     res = np.empty((batch, nx, n_sigma))
-    kernels.predict_moments(
-        moved, source, weights.mean_weights, weights.cov_weights, angle, added, x_points,
-        mean, cov, res,
+    kern.predict_moments(
+        moved, source, weights.mean_weights, weights.cov_weights, angle_mask(nx, (1,)), added,
+        x_points, mean, cov, res,
     )  # fmt: skip
     assert np.array_equal(x_points, moved[:, :, source])
-    ref_mean, ref_cov, ref_res = unscented_transform(x_points, weights, (1,))
+    ref_mean, ref_cov, ref_res = np_moments(x_points, weights, (1,))
     np.testing.assert_allclose(mean, ref_mean, rtol=RTOL, atol=1e-15)
     np.testing.assert_allclose(res, ref_res, rtol=RTOL, atol=1e-15)
-    np.testing.assert_allclose(cov, symmetrise(ref_cov + added), rtol=RTOL, atol=1e-15)
+    np.testing.assert_allclose(cov, ref_cov + added, rtol=RTOL, atol=1e-15)
     assert np.array_equal(cov, cov.transpose(0, 2, 1))
 
 
-def test_mixing_and_combination_are_the_numpy_ones(kernels):
-    rng = np.random.default_rng(6)
-    process, _ = oscillator_bank()
-    imm = ImmEstimator(UnscentedKalmanFilter(process, backend="numpy"), sticky_transition(7, 0.9))
-    imm.angle_idx = (2,)  # exercise the circular means
-    means = rng.standard_normal((7, 6))
-    means[:, 2] = wrap_angle(np.pi + 0.2 * rng.standard_normal(7))
-    covs = random_covariances(rng, 7, 6)
-    log_mu = np.log(rng.dirichlet(np.ones(7)))
-    log_mu[3] = -np.inf  # a mode ruled out
-    log_joint = imm.log_transition + log_mu[:, None]
-    ref_log_c = logsumexp(log_joint, axis=0)
-    ref_mean, ref_cov = imm._mix(means, covs, np.exp(log_joint - ref_log_c[None, :]))
-    log_c, mixed_mean, mixed_cov = np.empty(7), np.empty((7, 6)), np.empty((7, 6, 6))
-    kernels.imm_mix(
-        imm.log_transition, log_mu, means, covs, angle_mask(6, (2,)), log_c, mixed_mean, mixed_cov
-    )
-    np.testing.assert_allclose(log_c, ref_log_c, rtol=RTOL)
-    np.testing.assert_allclose(mixed_mean, ref_mean, rtol=RTOL, atol=1e-15)
-    np.testing.assert_allclose(mixed_cov, ref_cov, rtol=RTOL, atol=1e-15)
+def _update_case(rng, batch=5, nx=6, nz=4):
+    """Transformed points of a mildly nonlinear map, a measurement near +-pi on channel 1."""
+    weights = JulierSigmaPoints(1.0).weights(nx)
+    pred_mean = rng.standard_normal((batch, nx))
+    pred_mean[:, 2] = np.pi - 0.02
+    pred_cov = random_covariances(rng, batch, nx, 0.3)
+    points = np_sigma_points(pred_mean, np.linalg.cholesky(pred_cov), weights.spread)
+    _, _, x_res = np_moments(points, weights, (2,))
+    z_points = np.stack([points[0] + 0.1 * points[1] ** 2, wrap_angle(points[2] + 0.01),
+                         np.sin(points[3]), points[4] * points[5]])  # fmt: skip
+    z = np.array([0.3, -np.pi + 0.01, 0.2, -0.1])
+    add_r = np.diag([0.05, 0.01, 0.02, 0.03])
+    return weights, pred_mean, pred_cov, x_res, np.ascontiguousarray(z_points), z, add_r
 
-    probs = np.exp(log_mu)
-    ref_mean, ref_cov = imm._combine(means, covs, probs)
-    mean, cov = np.empty(6), np.empty((6, 6))
-    kernels.imm_combine(means, covs, probs, angle_mask(6, (2,)), mean, cov)
-    np.testing.assert_allclose(mean, ref_mean, rtol=RTOL, atol=1e-15)
-    np.testing.assert_allclose(cov, ref_cov, rtol=RTOL, atol=1e-15)
+
+def _run_update(kern, weights, pred_mean, pred_cov, x_res, z_points, z, add_r, angles):
+    nz, batch, _ = z_points.shape
+    nx = pred_mean.shape[1]
+    out = dict(
+        z_cov=np.empty((batch, nz, nz)), cross=np.empty((batch, nz, nx)),
+        innovation=np.empty((batch, nz)), z_chol=np.empty((batch, nz, nz)),
+        new_mean=np.empty((batch, nx)), new_cov=np.empty((batch, nx, nx)), nis=np.empty(batch),
+        log_lik=np.empty(batch),
+    )  # fmt: skip
+    ok = kern.update(
+        pred_mean, pred_cov, x_res, z_points, weights.mean_weights, weights.cov_weights,
+        angle_mask(nz, angles[0]), angle_mask(nx, angles[1]), z, add_r, *out.values(),
+    )  # fmt: skip
+    return ok, out
+
+
+def test_update_is_the_kalman_update_with_an_explicit_gain(kern):
+    case = _update_case(np.random.default_rng(10))
+    angles = ((1,), (2,))
+    ok, out = _run_update(kern, *case, angles)
+    assert ok
+    weights, pred_mean, pred_cov, x_res, z_points, z, add_r = case
+    ref = np_kalman_update(pred_mean, pred_cov, x_res, z_points, weights, z, add_r, *angles)
+    for name, expected in ref.items():
+        assert_close(out[name], expected, 1e-10)
+    np.testing.assert_allclose(out["z_chol"], np.linalg.cholesky(ref["z_cov"]), atol=1e-12)
+    assert np.array_equal(out["new_cov"], out["new_cov"].transpose(0, 2, 1))
+    # and from LAPACK's factors, gain_update (the path after a repair) gives the same update
+    again = {name: np.empty_like(out[name]) for name in ("new_mean", "new_cov", "nis", "log_lik")}
+    kern.gain_update(
+        pred_mean, pred_cov, out["cross"], out["innovation"], np.linalg.cholesky(out["z_cov"]),
+        angle_mask(pred_mean.shape[1], (2,)), *again.values(),
+    )  # fmt: skip
+    for name, values in again.items():
+        assert_close(values, out[name], 1e-12)
+
+
+def test_update_reports_an_innovation_covariance_it_cannot_factor(kern):
+    weights, pred_mean, pred_cov, x_res, z_points, z, add_r = _update_case(
+        np.random.default_rng(11)
+    )
+    z_points[3] = 0.0  # an output that ignores the state...
+    add_r[3, 3] = 0.0  # ...and has no noise: P_zz singular
+    ok, out = _run_update(kern, weights, pred_mean, pred_cov, x_res, z_points, z, add_r, ((), ()))
+    assert not ok
+    assert np.all(out["z_cov"][:, 3, :] == 0.0)
+
+
+def _mixing_case(rng, r=7, nx=6):
+    means = rng.standard_normal((r, nx))
+    means[:, 2] = wrap_angle(np.pi + 0.2 * rng.standard_normal(r))  # an angle across +-pi
+    covs = random_covariances(rng, r, nx)
+    log_mu = np.log(rng.dirichlet(np.ones(r)))
+    log_mu[3] = -np.inf  # a mode ruled out
+    with np.errstate(divide="ignore"):
+        log_t = np.log(sticky_transition(r, 0.9))
+    return means, covs, log_mu, log_t
+
+
+def test_imm_mix_and_combine_are_eqs_6_to_8_and_27_to_28(kern):
+    rng = np.random.default_rng(6)
+    means, covs, log_mu, log_t = _mixing_case(rng)
+    r, nx = means.shape
+    angle = angle_mask(nx, (2,))
+    log_c, mixed_mean, mixed_cov = np.empty(r), np.empty((r, nx)), np.empty((r, nx, nx))
+    kern.imm_mix(log_t, log_mu, means, covs, angle, log_c, mixed_mean, mixed_cov)
+    mu, T = np.exp(log_mu), np.exp(log_t)
+    c = T.T @ mu  # eq. (6)
+    np.testing.assert_allclose(log_c, np.log(c), rtol=RTOL)
+    for j in range(r):
+        w = T[:, j] * mu / c[j]  # mu_{i|j}
+        x0 = w @ means  # eq. (7); circular for the angle
+        x0[2] = np.arctan2(w @ np.sin(means[:, 2]), w @ np.cos(means[:, 2]))
+        d = means - x0
+        d[:, 2] = wrap_angle(d[:, 2])
+        P0 = np.einsum("i,iab->ab", w, covs) + (d.T * w) @ d  # eq. (8)
+        np.testing.assert_allclose(mixed_mean[j], x0, rtol=RTOL, atol=1e-15)
+        np.testing.assert_allclose(mixed_cov[j], P0, rtol=RTOL, atol=1e-15)
+
+    probs = rng.dirichlet(np.ones(r))
+    mean, cov = np.empty(nx), np.empty((nx, nx))
+    kern.imm_combine(means, covs, probs, angle, mean, cov)
+    x = probs @ means  # eq. (27)
+    x[2] = np.arctan2(probs @ np.sin(means[:, 2]), probs @ np.cos(means[:, 2]))
+    d = means - x
+    d[:, 2] = wrap_angle(d[:, 2])
+    np.testing.assert_allclose(mean, x, rtol=RTOL, atol=1e-15)
+    np.testing.assert_allclose(cov, np.einsum("j,jab->ab", probs, covs) + (d.T * probs) @ d,
+                               rtol=RTOL, atol=1e-15)  # fmt: skip
+    assert np.array_equal(cov, cov.T)
 
 
 @pytest.mark.parametrize(
@@ -176,30 +350,87 @@ def test_mixing_and_combination_are_the_numpy_ones(kernels):
     ],
 )
 @pytest.mark.parametrize("floor", [0.0, 1e-6, 0.01])
-def test_mode_probabilities_are_the_numpy_ones(kernels, log_lik, floor):
-    process, _ = oscillator_bank()
-    imm = ImmEstimator(
-        UnscentedKalmanFilter(process, backend="numpy"), sticky_transition(7, 0.9), floor
-    )
+def test_mode_probabilities_are_eq_26_with_the_floor(kern, log_lik, floor):
     log_lik = np.array(log_lik)
-    log_c = np.log(np.random.default_rng(9).dirichlet(np.ones(7)))
-    ref_log_mu, ref_probs = imm._posterior(log_lik, log_c)
+    c = np.random.default_rng(9).dirichlet(np.ones(7))
     log_mu, probs = np.empty(7), np.empty(7)
-    kernels.imm_posterior(log_lik, log_c, floor, log_mu, probs)
-    np.testing.assert_allclose(probs, ref_probs, rtol=RTOL, atol=1e-300)
-    np.testing.assert_allclose(log_mu, ref_log_mu, rtol=RTOL)
-    assert probs.min() >= floor * (1 - 1e-12)
+    kern.imm_posterior(log_lik, np.log(c), floor, log_mu, probs)
+    # eq. (26): mu_j proportional to Lambda_j c_j (c_j when no likelihood is finite)
+    log_unfloored = np.log(c) + (log_lik - np.max(log_lik) if np.isfinite(log_lik).any() else 0.0)
+    log_unfloored -= np.logaddexp.reduce(log_unfloored)
+    unfloored = np.exp(log_unfloored)
+    np.testing.assert_allclose(np.exp(log_mu), probs, rtol=1e-15)
+    np.testing.assert_allclose(probs.sum(), 1.0, rtol=1e-14)
+    raised = probs == floor
+    if floor == 0.0 or unfloored.min() >= floor:
+        assert not raised.any() or floor == 0.0
+        np.testing.assert_allclose(log_mu, log_unfloored, rtol=1e-12)
+    else:
+        # the floor: every probability at least the floor, those below it raised to it, the
+        # others scaled by one common factor (their ratios kept)
+        assert probs.min() >= floor * (1 - 1e-12) and raised[unfloored < floor].all()
+        ratio = probs[~raised] / unfloored[~raised]
+        np.testing.assert_allclose(ratio, ratio[0], rtol=1e-12)
+        assert ratio[0] < 1.0
 
 
-# -- whole filters: numpy and compiled backends side by side ----------------------------------
+# -- compiled against interpreted, on the same inputs -------------------------------------------
 
 
-def assert_close(actual, expected, rtol):
-    """Elementwise, relative to the array's largest entry (covariances mix scales)."""
-    np.testing.assert_allclose(actual, expected, rtol=0.0, atol=rtol * np.max(np.abs(expected)))
+def _both(name, *args):
+    """Run kernel ``name`` compiled and interpreted on copies of ``args``; both argument lists."""
+    runs = []
+    for kern in (compiled_kernels, load_kernels("python")):
+        copies = [a.copy() if isinstance(a, np.ndarray) else a for a in args]
+        result = getattr(kern, name)(*copies)
+        runs.append((result, copies))
+    return runs
+
+
+def _assert_same_runs(runs):
+    (result_c, args_c), (result_p, args_p) = runs
+    assert result_c == result_p
+    for a, b in zip(args_c, args_p, strict=True):
+        if isinstance(a, np.ndarray) and a.dtype == float:
+            scale = np.max(np.abs(b[np.isfinite(b)]), initial=1.0)
+            np.testing.assert_allclose(a, b, rtol=SAME, atol=SAME * scale)
+
+
+def test_compiled_and_interpreted_update_agree():
+    weights, pred_mean, pred_cov, x_res, z_points, z, add_r = _update_case(
+        np.random.default_rng(12)
+    )
+    nz, batch, _ = z_points.shape
+    nx = pred_mean.shape[1]
+    outs = [np.empty(s) for s in [(batch, nz, nz), (batch, nz, nx), (batch, nz), (batch, nz, nz),
+                                  (batch, nx), (batch, nx, nx), (batch,), (batch,)]]  # fmt: skip
+    _assert_same_runs(_both(
+        "update", pred_mean, pred_cov, x_res, z_points, weights.mean_weights, weights.cov_weights,
+        angle_mask(nz, (1,)), angle_mask(nx, (2,)), z, add_r, *outs,
+    ))  # fmt: skip
+
+
+def test_compiled_and_interpreted_imm_kernels_agree():
+    rng = np.random.default_rng(13)
+    means, covs, log_mu, log_t = _mixing_case(rng)
+    r, nx = means.shape
+    angle = angle_mask(nx, (2,))
+    _assert_same_runs(_both(
+        "imm_mix", log_t, log_mu, means, covs, angle, np.empty(r), np.empty((r, nx)),
+        np.empty((r, nx, nx)),
+    ))  # fmt: skip
+    log_lik = np.array([-3.0, -1e6, -2e6, -5.0, -1e7, -4.0, -9e5])
+    _assert_same_runs(_both("imm_posterior", log_lik, log_mu, 1e-4, np.empty(r), np.empty(r)))
+    probs = rng.dirichlet(np.ones(r))
+    _assert_same_runs(_both("imm_combine", means, covs, probs, angle, np.empty(nx),
+                            np.empty((nx, nx))))  # fmt: skip
+
+
+# -- whole filters: compiled and interpreted side by side ---------------------------------------
 
 
 def _assert_same_estimate(fast, ref, rtol=1e-10):
+    assert fast.t_s == ref.t_s
     for name in ("mean", "cov", "predicted_mean", "predicted_cov", "log_likelihood", "nis"):
         assert_close(getattr(fast, name), getattr(ref, name), rtol)
     if ref.innovation is None:
@@ -212,28 +443,28 @@ def _assert_same_estimate(fast, ref, rtol=1e-10):
 
 @pytest.mark.parametrize("noise_form", ["augmented", "additive"])
 @pytest.mark.parametrize("scheme", [JulierSigmaPoints(), ScaledSigmaPoints(0.5, 2.0, 1.0)])
-def test_ukf_backends_agree_on_range_bearing_tracking(noise_form, scheme):
+def test_ukf_compiled_and_interpreted_agree_on_range_bearing_tracking(noise_form, scheme):
     sys = constant_velocity()
     model = range_bearing_model()
     rng = np.random.default_rng(7)
     _, zs = simulate_target(rng, sys, np.array([-1500.0, 30.0, 8.0, -1.0]), 60)  # bearing ~ pi
     filters = [
         UnscentedKalmanFilter(sys.process(), scheme, noise_form, backend=b)
-        for b in ("numba", "numpy")
+        for b in ("numba", "python")
     ]
-    assert [f.backend for f in filters] == ["numba", "numpy"]
-    states = [(np.array([[-1490.0, 20.0, 7.0, 0.0]]), np.diag([400.0, 400.0, 4.0, 4.0])[None])] * 2
+    assert [f.backend for f in filters] == ["numba", "python"]
+    x0, P0 = np.array([-1490.0, 20.0, 7.0, 0.0]), np.diag([400.0, 400.0, 4.0, 4.0])
+    ests = [f.initial_estimate(0.0, x0, P0) for f in filters]
     for k, z in enumerate(zs):
         measurement = None if k % 7 == 3 else Measurement(z, model)  # some predict-only steps
-        ests = [f.step(0.1 * k, x, P, np.zeros(0), measurement) for f, (x, P) in zip(
-            filters, states, strict=True)]  # fmt: skip
+        ests = [f.step(e, 0.1 * (k + 1), np.zeros(0), measurement) for f, e in zip(
+            filters, ests, strict=True)]  # fmt: skip
         _assert_same_estimate(*ests)
-        states = [(e.mean, e.cov) for e in ests]
     assert filters[0].diagnostics == filters[1].diagnostics
 
 
 @pytest.mark.parametrize("noise_form", ["augmented", "additive"])
-def test_imm_backends_agree_on_a_fault_bank(noise_form):
+def test_imm_compiled_and_interpreted_agree_on_a_fault_bank(noise_form):
     process, A = oscillator_bank()
     modes = list(single_fault_modes())
     output = MeasurementModel(
@@ -246,15 +477,15 @@ def test_imm_backends_agree_on_a_fault_bank(noise_form):
             sticky_transition(7, 0.99),
             1e-4,
         )
-        for b in ("numba", "numpy")
+        for b in ("numba", "python")
     ]
     ests = [imm.initial_estimate(0.0, np.zeros(6), np.eye(6)) for imm in imms]
     x = np.array([1.0, 0.3, -0.8, 0.2, 1.0, 0.6])
-    for k in range(80):
+    for k in range(60):
         x = A @ x + 0.01 * rng.standard_normal(6)
-        mask = modes[4].healthy_mask if k >= 40 else np.ones(6)
+        mask = modes[4].healthy_mask if k >= 30 else np.ones(6)
         z = x * mask + 0.05 * rng.standard_normal(6)
-        ests = [imm.step(e, 0.1 * k, np.zeros(0), Measurement(z, output)) for imm, e in zip(
+        ests = [imm.step(e, 0.1 * (k + 1), np.zeros(0), Measurement(z, output)) for imm, e in zip(
             imms, ests, strict=True)]  # fmt: skip
         fast, ref = ests
         for name in ("mean", "cov", "mode_probabilities", "mode_means", "mode_covs", "nis"):
@@ -264,7 +495,7 @@ def test_imm_backends_agree_on_a_fault_bank(noise_form):
     assert imms[0].diagnostics == imms[1].diagnostics
 
 
-def test_repairs_are_counted_alike_on_both_backends():
+def test_repairs_are_counted_alike_compiled_and_interpreted():
     sys = constant_velocity()
     v = np.array([1.0, 2.0, 0.5, -1.0])
     bad_covs = [
@@ -279,14 +510,15 @@ def test_repairs_are_counted_alike_on_both_backends():
     for noise_form in ("augmented", "additive"):
         filters = [
             UnscentedKalmanFilter(sys.process(), noise_form=noise_form, backend=b)
-            for b in ("numba", "numpy")
+            for b in ("numba", "python")
         ]
         for P in bad_covs:
             for z in (Measurement(np.array([1118.0, 0.46]), range_bearing_model()), z_huge, z_nan):
                 ests = [
-                    f.step(0.0, np.array([[1000.0, 500.0, 1.0, 1.0]]), P[None], np.zeros(0), z)
+                    f.step(f.initial_estimate(0.0, np.array([1000.0, 500.0, 1.0, 1.0]), P), 0.1,
+                           np.zeros(0), z)
                     for f in filters
-                ]
+                ]  # fmt: skip
                 _assert_same_estimate(*ests, rtol=1e-8)
         fast, ref = (f.diagnostics for f in filters)
         assert fast == ref
@@ -295,7 +527,7 @@ def test_repairs_are_counted_alike_on_both_backends():
 
 
 @pytest.mark.parametrize("noise_form", ["augmented", "additive"])
-def test_an_innovation_covariance_the_kernels_cannot_factor_goes_to_the_numpy_update(noise_form):
+def test_an_innovation_covariance_the_kernels_cannot_factor_is_repaired_and_counted(noise_form):
     sys = constant_velocity()
     # the first channel ignores the state and has no noise: P_zz is singular
     blind = MeasurementModel(
@@ -304,18 +536,19 @@ def test_an_innovation_covariance_the_kernels_cannot_factor_goes_to_the_numpy_up
     )
     filters = [
         UnscentedKalmanFilter(sys.process(), noise_form=noise_form, backend=b)
-        for b in ("numba", "numpy")
+        for b in ("numba", "python")
     ]
+    x0, P0 = np.array([10.0, 5.0, 1.0, 1.0]), np.eye(4)
     ests = [
-        f.step(0.0, np.array([[10.0, 5.0, 1.0, 1.0]]), np.eye(4)[None], np.zeros(0),
+        f.step(f.initial_estimate(0.0, x0, P0), 0.1, np.zeros(0),
                Measurement(np.array([0.0, 5.5]), blind))
         for f in filters
     ]  # fmt: skip
     _assert_same_estimate(*ests)
     assert filters[0].diagnostics == filters[1].diagnostics
     assert filters[0].diagnostics.cholesky_jitter == 1
-
-
-def test_unknown_backend_is_rejected():
-    with pytest.raises(ValueError, match="backend must be"):
-        UnscentedKalmanFilter(constant_velocity().process(), backend="cuda")
+    # the blind channel carries no information: the update is the east-position update alone
+    Pp = ests[0].predicted_cov[0]
+    gain = Pp[:, 1] / (Pp[1, 1] + 4.0)
+    expected = ests[0].predicted_mean[0] + gain * (5.5 - ests[0].predicted_mean[0, 1])
+    np.testing.assert_allclose(ests[0].mean[0], expected, rtol=1e-6)

@@ -1,5 +1,7 @@
 """The IMM: reduction to one UKF, mode switching, and zeroed-channel fault identification."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from toy_systems import (
@@ -15,6 +17,7 @@ from immukf_sitl.estimation import (
     ImmEstimator,
     Measurement,
     MeasurementModel,
+    ProcessModel,
     UnscentedKalmanFilter,
     fault_masked_output,
     single_fault_modes,
@@ -37,14 +40,14 @@ def test_one_mode_imm_is_exactly_the_ukf():
     ukf = UnscentedKalmanFilter(sys.process())
     imm = ImmEstimator(UnscentedKalmanFilter(sys.process()), np.ones((1, 1)))
     est = imm.initial_estimate(0.0, x0, P0)
-    x, P = x0[None], P0[None]
+    single = ukf.initial_estimate(0.0, x0, P0)
     for k, z in enumerate(zs):
-        single = ukf.step(0.1 * k, x, P, np.zeros(0), Measurement(z, model))
-        x, P = single.mean, single.cov
-        est = imm.step(est, 0.1 * k, np.zeros(0), Measurement(z, model))
-        assert np.array_equal(est.mean, x[0])
-        assert np.array_equal(est.cov, P[0])
+        single = ukf.step(single, 0.1 * (k + 1), np.zeros(0), Measurement(z, model))
+        est = imm.step(est, 0.1 * (k + 1), np.zeros(0), Measurement(z, model))
+        assert np.array_equal(est.mean, single.mean[0])
+        assert np.array_equal(est.cov, single.cov[0])
         assert est.mode_probabilities[0] == 1.0
+        assert est.t_s == single.t_s == 0.1 * (k + 1)
 
 
 def _simulate_oscillators(rng, A, n_steps, fault_at):
@@ -71,7 +74,7 @@ def _run(imm, measurement, zs):
     est = imm.initial_estimate(0.0, np.zeros(6), np.eye(6))
     probs = []
     for k, z in enumerate(zs):
-        est = imm.step(est, 0.1 * k, np.zeros(0), Measurement(z, measurement))
+        est = imm.step(est, 0.1 * (k + 1), np.zeros(0), Measurement(z, measurement))
         probs.append(est.mode_probabilities)
     return np.array(probs), est
 
@@ -132,25 +135,57 @@ def test_probability_floor_keeps_every_mode_alive():
     np.testing.assert_allclose(probs.sum(axis=1), 1.0, rtol=1e-12)
 
 
-def test_mixing_and_combination_match_the_textbook_formulas():
-    # two modes, hand-computed eqs. (6)-(8) and (27)-(28) with a non-uniform transition matrix
-    process, _ = oscillator_bank()
+def test_a_predict_only_step_is_the_textbook_mixing_and_combination():
+    # two modes, a static noise-free process: the mode-matched filters return the mixed
+    # initial conditions of eqs. (6)-(8), eq. (26) without likelihoods leaves c_j, and the
+    # combination is eqs. (27)-(28); all hand-computed, with a non-uniform transition matrix
+    process = ProcessModel(lambda t, x, u, v: x if v is None else x + v, 6, np.zeros((6, 6)))
     T = np.array([[0.95, 0.05], [0.2, 0.8]])
     imm = ImmEstimator(UnscentedKalmanFilter(process), T)
     rng = np.random.default_rng(2)
     means = rng.normal(size=(2, 6))
     covs = np.stack([np.eye(6) * 0.5, np.eye(6) * 2.0])
     mu = np.array([0.3, 0.7])
-    c = T.T @ mu
+    previous = replace(
+        imm.initial_estimate(0.0, means[0], covs[0], mu), mode_means=means, mode_covs=covs
+    )
+    est = imm.step(previous, 0.1, np.zeros(0), None)
+
+    c = T.T @ mu  # eq. (6)
     mix = T * mu[:, None] / c[None, :]
-    mixed_mean, mixed_cov = imm._mix(means, covs, mix)
     for j in range(2):
-        x0 = sum(mix[i, j] * means[i] for i in range(2))
+        x0 = sum(mix[i, j] * means[i] for i in range(2))  # eq. (7)
         P0 = sum(mix[i, j] * (covs[i] + np.outer(means[i] - x0, means[i] - x0)) for i in range(2))
-        np.testing.assert_allclose(mixed_mean[j], x0, rtol=1e-12)
-        np.testing.assert_allclose(mixed_cov[j], P0, rtol=1e-12)
-    mean, cov = imm._combine(means, covs, mu)
-    x = mu @ means
-    P = sum(mu[j] * (covs[j] + np.outer(means[j] - x, means[j] - x)) for j in range(2))
-    np.testing.assert_allclose(mean, x, rtol=1e-12)
-    np.testing.assert_allclose(cov, P, rtol=1e-12)
+        np.testing.assert_allclose(est.mode_means[j], x0, rtol=1e-12)
+        np.testing.assert_allclose(est.mode_covs[j], P0, rtol=1e-12)
+    np.testing.assert_allclose(est.mode_probabilities, c, rtol=1e-12)
+    x = c @ est.mode_means  # eq. (27)
+    P = sum(
+        c[j] * (est.mode_covs[j] + np.outer(est.mode_means[j] - x, est.mode_means[j] - x))
+        for j in range(2)
+    )  # eq. (28)
+    np.testing.assert_allclose(est.mean, x, rtol=1e-12)
+    np.testing.assert_allclose(est.cov, P, rtol=1e-12)
+    assert est.t_s == 0.1 and not est.updated and est.innovations is None
+
+
+def test_the_process_model_gets_the_start_of_the_step_and_the_output_model_its_end():
+    calls = []
+    process = ProcessModel(
+        lambda t, x, u, v: calls.append(("f", t)) or (x if v is None else x + v),
+        2,
+        np.eye(2),
+        additive_noise_cov=np.eye(2),
+    )
+    output = MeasurementModel(
+        lambda t, x, u, w: calls.append(("g", t)) or (x if w is None else x + w), np.eye(2)
+    )
+    for noise_form in ("augmented", "additive"):
+        imm = ImmEstimator(UnscentedKalmanFilter(process, noise_form=noise_form), np.ones((1, 1)))
+        est = imm.initial_estimate(1.0, np.zeros(2), np.eye(2))
+        calls.clear()
+        est = imm.step(est, 1.25, np.zeros(0), Measurement(np.ones(2), output))
+        assert calls == [("f", 1.0), ("g", 1.25)] and est.t_s == 1.25
+        calls.clear()
+        est = imm.step(est, 1.5, np.zeros(0), None)
+        assert calls == [("f", 1.25)] and est.t_s == 1.5

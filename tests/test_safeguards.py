@@ -7,6 +7,7 @@ from toy_systems import constant_velocity, range_bearing_model
 from immukf_sitl.estimation import (
     ImmEstimator,
     Measurement,
+    MeasurementModel,
     UnscentedKalmanFilter,
     sticky_transition,
 )
@@ -26,9 +27,8 @@ def test_nearly_singular_covariance_is_repaired_and_counted():
     with pytest.raises(np.linalg.LinAlgError):
         np.linalg.cholesky(P)
     est = ukf.step(
-        0.0,
-        np.array([[1000.0, 500.0, 1.0, 1.0]]),
-        P[None],
+        ukf.initial_estimate(0.0, np.array([1000.0, 500.0, 1.0, 1.0]), P),
+        0.1,
         np.zeros(0),
         Measurement(np.array([1118.0, 0.46]), range_bearing_model()),
     )
@@ -59,13 +59,16 @@ def test_nan_covariance_entries_do_not_crash():
 def test_nan_measurement_skips_the_update_and_is_counted():
     sys = constant_velocity()
     ukf = UnscentedKalmanFilter(sys.process())
-    x0, P0 = np.array([[1000.0, 500.0, 1.0, 1.0]]), np.eye(4)[None] * 10
+    x0, P0 = np.array([1000.0, 500.0, 1.0, 1.0]), np.eye(4) * 10
     est = ukf.step(
-        0.0, x0, P0, np.zeros(0), Measurement(np.array([np.nan, 0.4]), range_bearing_model())
+        ukf.initial_estimate(0.0, x0, P0),
+        0.1,
+        np.zeros(0),
+        Measurement(np.array([np.nan, 0.4]), range_bearing_model()),
     )
     assert ukf.diagnostics.skipped_nonfinite_measurement == 1
     assert not est.updated and _finite(est)
-    np.testing.assert_allclose(est.mean[0], sys.F @ x0[0])
+    np.testing.assert_allclose(est.mean[0], sys.F @ x0)
 
 
 def test_million_sigma_innovation_stays_finite_and_is_counted():
@@ -75,13 +78,13 @@ def test_million_sigma_innovation_stays_finite_and_is_counted():
     imm = ImmEstimator(ukf, sticky_transition(2, 0.99), probability_floor=1e-6)
     est = imm.initial_estimate(0.0, np.array([1000.0, 500.0, 1.0, 1.0]), np.eye(4))
     z = np.array([1118.0 + 1e6 * 5.0, 0.46])
-    est = imm.step(est, 0.0, np.zeros(0), Measurement(z, model))
+    est = imm.step(est, 0.1, np.zeros(0), Measurement(z, model))
     assert np.all(np.isfinite(est.mean)) and np.all(np.isfinite(est.cov))
     assert np.all(np.isfinite(est.log_likelihoods)) and np.all(est.log_likelihoods < -1e9)
     np.testing.assert_allclose(est.mode_probabilities.sum(), 1.0)
     assert ukf.diagnostics.outlier_innovations == 2  # both modes saw it
     # and the next ordinary measurement still updates normally
-    est = imm.step(est, 0.1, np.zeros(0), Measurement(np.array([1118.0, 0.46]), model))
+    est = imm.step(est, 0.2, np.zeros(0), Measurement(np.array([1118.0, 0.46]), model))
     assert est.updated and np.all(np.isfinite(est.mean))
 
 
@@ -90,6 +93,27 @@ def test_every_covariance_is_symmetrised_each_step():
     ukf = UnscentedKalmanFilter(sys.process())
     P = np.eye(4) * 10
     P[0, 1] = 1e-3  # asymmetric on input
-    est = ukf.step(0.0, np.zeros((1, 4)) + 100, P[None], np.zeros(0), None)
+    est = ukf.step(ukf.initial_estimate(0.0, np.zeros(4) + 100, P), 0.1, np.zeros(0), None)
     assert np.array_equal(est.cov[0], est.cov[0].T)
-    assert ukf.diagnostics.symmetrised >= 2
+    assert ukf.diagnostics.symmetrised == 2  # P(k|k) and P(k+1|k)
+    # the input was symmetrised before use: the prediction is F ((P + P')/2) F' + G Q G'
+    P_sym = 0.5 * (P + P.T)
+    np.testing.assert_allclose(
+        est.cov[0], sys.F @ P_sym @ sys.F.T + sys.G @ sys.Q @ sys.G.T, rtol=1e-12, atol=1e-13
+    )
+
+
+def test_a_non_finite_update_resets_the_filter_to_its_prior_and_is_counted():
+    sys = constant_velocity()
+    # an output model that overflows: P_zz and the gain become inf/NaN
+    overflow = MeasurementModel(lambda t, x, u, w: x[:2] * 1e200 + (0.0 if w is None else w),
+                                np.eye(2))  # fmt: skip
+    ukf = UnscentedKalmanFilter(sys.process())
+    x0, P0 = np.array([[1.0, 2.0, 0.5, -0.5], [3.0, 4.0, 0.1, 0.2]]), np.stack([np.eye(4)] * 2)
+    est = ukf.step(ukf.initial_estimate(0.0, x0, P0), 0.1, np.zeros(0),
+                   Measurement(np.array([1.0, 2.0]), overflow))  # fmt: skip
+    assert ukf.diagnostics.nonfinite_state_reset == 2
+    assert ukf.diagnostics.cholesky_eigen_floor == 2  # the non-finite P_zz were repaired first
+    np.testing.assert_array_equal(est.mean, x0)
+    np.testing.assert_array_equal(est.cov, P0)
+    assert np.all(est.log_likelihood == -np.inf)

@@ -23,9 +23,9 @@ def _monte_carlo(noise_form):
     for run in range(N_RUNS):
         x_true0 = x0_true_mean + np.linalg.cholesky(P0) @ rng.standard_normal(4)
         xs, zs = simulate_target(rng, sys, x_true0, N_STEPS)
-        x, P = x0_true_mean[None], P0[None]
+        est = ukf.initial_estimate(0.0, x0_true_mean, P0)
         for k in range(N_STEPS):
-            est = ukf.step(0.1 * k, x, P, np.zeros(0), Measurement(zs[k], model))
+            est = ukf.step(est, 0.1 * (k + 1), np.zeros(0), Measurement(zs[k], model))
             x, P = est.mean, est.cov
             err = xs[k] - x[0]
             nees[run, k] = err @ np.linalg.solve(P[0], err)

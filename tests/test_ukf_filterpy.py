@@ -36,11 +36,11 @@ def test_additive_ukf_matches_filterpy_on_range_bearing(alpha, beta, kappa):
     # the bearing stays far from +-pi here; both filters use plain (not circular) means, as
     # filterpy's default unscented_transform does
     model = range_bearing_model(angles=False)
-    x, P = x0[None], P0[None]
+    est = ukf.initial_estimate(0.0, x0, P0)
     for k, z in enumerate(zs):
         ref.predict()
         ref.update(z)
-        est = ukf.step(k * DT_S, x, P, np.zeros(0), Measurement(z, model))
+        est = ukf.step(est, (k + 1) * DT_S, np.zeros(0), Measurement(z, model))
         x, P = est.mean, est.cov
         np.testing.assert_allclose(x[0], ref.x, rtol=1e-8, atol=1e-8 * np.abs(ref.x).max())
         np.testing.assert_allclose(P[0], ref.P, rtol=1e-8, atol=1e-8 * np.abs(ref.P).max())

@@ -33,13 +33,13 @@ def test_ukf_equals_kalman_filter_over_100_steps(noise_form, scheme):
 
     ukf = UnscentedKalmanFilter(sys.process(), scheme, noise_form)
     model = sys.measurement()
-    x, P = x0[None], P0[None]
+    est = ukf.initial_estimate(0.0, x0, P0)
     for k, z in enumerate(zs):
-        est = ukf.step(0.1 * k, x, P, np.zeros(0), Measurement(z, model))
-        x, P = est.mean, est.cov
+        est = ukf.step(est, 0.1 * (k + 1), np.zeros(0), Measurement(z, model))
+        assert est.t_s == 0.1 * (k + 1)
         x_ref, P_ref = reference[k]
-        assert _relative_error(x[0], x_ref) < 1e-9, k
-        assert _relative_error(P[0], P_ref) < 1e-9, k
+        assert _relative_error(est.mean[0], x_ref) < 1e-9, k
+        assert _relative_error(est.cov[0], P_ref) < 1e-9, k
     assert ukf.diagnostics.cholesky_jitter == 0
     assert ukf.diagnostics.steps == 100
 
@@ -49,7 +49,7 @@ def test_predict_only_step_propagates_mean_and_covariance():
     ukf = UnscentedKalmanFilter(sys.process())
     x0 = np.array([1.0, 2.0, 3.0, 4.0])
     P0 = np.diag([1.0, 2.0, 3.0, 4.0])
-    est = ukf.step(0.0, x0[None], P0[None], np.zeros(0), None)
+    est = ukf.step(ukf.initial_estimate(0.0, x0, P0), 0.1, np.zeros(0), None)
     np.testing.assert_allclose(est.mean[0], sys.F @ x0, rtol=1e-12)
     expected = sys.F @ P0 @ sys.F.T + sys.G @ sys.Q @ sys.G.T
     np.testing.assert_allclose(est.cov[0], expected, rtol=1e-12, atol=1e-14)
@@ -63,7 +63,8 @@ def test_log_likelihood_is_the_gaussian_density_of_the_innovation():
     x0 = np.array([0.0, 0.0, 1.0, 1.0])
     P0 = np.eye(4)
     z = np.array([0.7, -0.4])
-    est = ukf.step(0.0, x0[None], P0[None], np.zeros(0), Measurement(z, sys.measurement()))
+    model = sys.measurement()
+    est = ukf.step(ukf.initial_estimate(0.0, x0, P0), 0.1, np.zeros(0), Measurement(z, model))
     Pp = sys.F @ P0 @ sys.F.T + sys.G @ sys.Q @ sys.G.T
     S = sys.H @ Pp @ sys.H.T + sys.R
     nu = z - sys.H @ sys.F @ x0

@@ -1,50 +1,29 @@
-"""Angle-valued components: wrapped residuals and weighted circular means.
+"""Angle-valued components: wrapped residuals and masks of the angle rows.
 
 Filters treat the components listed in an ``angle_idx`` tuple as angles in radians: residuals
-are wrapped to [-pi, pi) and means are taken on the circle, so that a heading near +-pi does not
-average to zero.
+are wrapped to [-pi, pi) and means are taken on the circle (in the kernels of
+:mod:`immukf_sitl.estimation.kernels`), so that a heading near +-pi does not average to zero.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-TWO_PI = 2.0 * np.pi
+from immukf_sitl.estimation import kernels
+
+#: The kernel's formula; uncompiled, it runs on numpy arrays (``py_func`` is absent only when
+#: numba's JIT is disabled, and then the kernel is the plain function already).
+_wrap = getattr(kernels.wrap, "py_func", kernels.wrap)
 
 
 def wrap_angle(angle_rad: np.ndarray | float) -> np.ndarray:
-    """Wrap angles to [-pi, pi)."""
-    return (np.asarray(angle_rad) + np.pi) % TWO_PI - np.pi
+    """Wrap angles to [-pi, pi): ``(a + pi) mod 2 pi - pi``, elementwise."""
+    return _wrap(np.asarray(angle_rad))
 
 
-def wrap_rows(values: np.ndarray, angle_idx: tuple[int, ...]) -> np.ndarray:
-    """Wrap, in place, the rows ``angle_idx`` of an array whose first axis is the component axis."""
-    if angle_idx:
-        values[list(angle_idx)] = wrap_angle(values[list(angle_idx)])
-    return values
-
-
-def weighted_mean(
-    points: np.ndarray, weights: np.ndarray, angle_idx: tuple[int, ...] = ()
-) -> np.ndarray:
-    """Weighted mean over the last axis; circular mean for the rows in ``angle_idx``.
-
-    Parameters
-    ----------
-    points : ndarray, shape (n, ..., s)
-        Component axis first, samples on the last axis.
-    weights : ndarray, shape (s,)
-        Sample weights (they may be negative, as with small kappa).
-    angle_idx : tuple of int
-        Components that are angles in radians.
-
-    Returns
-    -------
-    ndarray, shape (n, ...)
-    """
-    mean = points @ weights
-    if angle_idx:
-        idx = list(angle_idx)
-        angles = points[idx]
-        mean[idx] = np.arctan2(np.sin(angles) @ weights, np.cos(angles) @ weights)
-    return mean
+def angle_mask(n: int, angle_idx: tuple[int, ...]) -> np.ndarray:
+    """Read-only boolean mask of length ``n``, True at ``angle_idx`` (the kernels' angle form)."""
+    mask = np.zeros(n, dtype=np.bool_)
+    mask[list(angle_idx)] = True
+    mask.setflags(write=False)
+    return mask

@@ -1,9 +1,9 @@
 """The Interacting Multiple Model estimator over a bank of mode-matched UKFs.
 
 Mixing (eqs. 6-8), mode-matched filtering (eqs. 9-25, one batched UKF step for the whole bank),
-mode probabilities (eq. 26) in log space, and the combined estimate (eqs. 27-28). Mixing and
-combination run in the UKF's backend: numpy (the reference, below) or the compiled kernels of
-:mod:`immukf_sitl.estimation._kernels_numba`.
+mode probabilities (eq. 26) in log space, and the combined estimate (eqs. 27-28). Mixing,
+probabilities and combination are kernels of :mod:`immukf_sitl.estimation.kernels`, run the
+way the bank's filter runs its own (``ukf.kernels``: compiled or interpreted).
 
 Convention (eq. 3), checked on construction: ``transition[i, j] = P(M(k+1) = j | M(k) = i)``;
 every row sums to one.
@@ -15,9 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from immukf_sitl.estimation.angles import weighted_mean, wrap_angle
+from immukf_sitl.estimation.angles import angle_mask
 from immukf_sitl.estimation.diagnostics import FilterDiagnostics
-from immukf_sitl.estimation.linalg import symmetrise
 from immukf_sitl.estimation.models import Measurement
 from immukf_sitl.estimation.ukf import UnscentedKalmanFilter
 
@@ -34,40 +33,14 @@ def sticky_transition(n_modes: int, stay_probability: float) -> np.ndarray:
     return matrix
 
 
-def logsumexp(values: np.ndarray, axis: int | None = None) -> np.ndarray:
-    """``log(sum(exp(values)))`` without overflow (scipy's version costs ~50 us a call)."""
-    peak = np.max(values, axis=axis, keepdims=True)
-    peak = np.where(np.isfinite(peak), peak, 0.0)
-    total = np.log(np.sum(np.exp(values - peak), axis=axis, keepdims=True)) + peak
-    return total.squeeze() if axis is None else np.squeeze(total, axis=axis)
-
-
-def floor_probabilities(probs: np.ndarray, floor: float) -> np.ndarray:
-    """Raise every probability to at least ``floor``, taking the mass from the others pro rata.
-
-    Probabilities below the floor are set to it; the rest are scaled to share what is left,
-    repeated until none falls below (at most ``r`` rounds). The result sums to one.
-    """
-    fixed = probs < floor
-    scaled = probs
-    for _ in range(probs.size):
-        free_mass = 1.0 - floor * np.count_nonzero(fixed)
-        scaled = probs * (free_mass / probs[~fixed].sum())
-        now_fixed = fixed | (scaled < floor)
-        if np.array_equal(now_fixed, fixed):
-            break
-        fixed = now_fixed
-    return np.where(fixed, floor, scaled)
-
-
 @dataclass(frozen=True)
 class ImmEstimate:
-    """State of the IMM after a step.
+    """State of the IMM at one time; what :meth:`ImmEstimator.step` returns.
 
     Attributes
     ----------
     t_s : float
-        Time of the estimate.
+        Time of the estimate: the ``t_next_s`` of the step that made it.
     mean, cov : ndarray, shapes (nx,), (nx, nx)
         Combined estimate ``x(k+1|k+1)``, ``P(k+1|k+1)`` (eqs. 27-28).
     mode_probabilities : ndarray, shape (r,)
@@ -111,12 +84,13 @@ class ImmEstimator:
     ----------
     ukf : UnscentedKalmanFilter
         The filter of every mode; modes differ through the (mode-batched) measurement model
-        passed to :meth:`step`, e.g. one built by ``fault_masked_output``.
+        passed to :meth:`step`, e.g. one built by ``fault_masked_output``. Its ``kernels`` run
+        the IMM's arithmetic too.
     transition : ndarray, shape (r, r)
         ``transition[i, j] = P(M(k+1)=j | M(k)=i)`` (eq. 3).
     probability_floor : float
         Lower bound on every mode probability after eq. (26), so that a mode ruled out can come
-        back; 0 disables it (see :func:`floor_probabilities`).
+        back; 0 disables it (see :func:`immukf_sitl.estimation.kernels.floor_probabilities`).
     """
 
     def __init__(
@@ -139,8 +113,7 @@ class ImmEstimator:
             self.log_transition = np.log(transition)
         self.probability_floor = float(probability_floor)
         self.angle_idx = ukf.process.angle_idx
-        self._kernels = ukf._kernels
-        self._angle_mask = ukf._x_angle
+        self._angle_mask = angle_mask(ukf.process.nx, self.angle_idx)
 
     @property
     def n_modes(self) -> int:
@@ -171,7 +144,7 @@ class ImmEstimator:
         with np.errstate(divide="ignore"):
             log_probs = np.log(probs)
         return ImmEstimate(
-            t_s,
+            float(t_s),
             mean.copy(),
             cov.copy(),
             probs,
@@ -187,104 +160,37 @@ class ImmEstimator:
     def step(
         self,
         previous: ImmEstimate,
-        t_s: float,
+        t_next_s: float,
         u: np.ndarray,
         measurement: Measurement | None,
     ) -> ImmEstimate:
-        """One IMM cycle from ``previous`` (time k) to ``k+1`` with control ``u``."""
-        log_mu = previous.log_mode_probabilities
-        if self._kernels is not None:
-            log_c, mixed_mean, mixed_cov = self._mix_compiled(previous)
-        else:
-            # eq. (6): c_j = sum_i p_ij mu_i and mu_{i|j} = p_ij mu_i / c_j, in log space
-            log_joint = self.log_transition + log_mu[:, None]
-            log_c = logsumexp(log_joint, axis=0)
-            mixing = np.exp(log_joint - log_c[None, :])  # [i, j] = mu_{i|j}
-            mixed_mean, mixed_cov = self._mix(previous.mode_means, previous.mode_covs, mixing)
+        """One IMM cycle from ``previous`` (time ``k``) to ``k+1`` with control ``u``.
 
-        filtered = self.ukf.step(t_s, mixed_mean, mixed_cov, u, measurement)
+        Parameters
+        ----------
+        previous : ImmEstimate
+            The estimate at ``k`` (from :meth:`initial_estimate` or the previous step).
+        t_next_s : float
+            Time of ``k+1``: of ``measurement`` and of the estimate returned. The process model
+            is called with ``previous.t_s``, the output model with ``t_next_s``.
+        u : ndarray
+            Control held over the step, passed to the models unchanged.
+        measurement : Measurement or None
+            ``z(k+1)``; ``None`` (or a non-finite ``z``) gives a predict-only step.
 
-        if self._kernels is not None:
-            log_mu_new, probs = self._posterior_compiled(filtered.log_likelihood, log_c)
-            mean, cov = self._combine_compiled(filtered.mean, filtered.cov, probs)
-        else:
-            log_mu_new, probs = self._posterior(filtered.log_likelihood, log_c)
-            mean, cov = self._combine(filtered.mean, filtered.cov, probs)
-        return ImmEstimate(
-            filtered.t_s,
-            mean,
-            cov,
-            probs,
-            log_mu_new,
-            filtered.mean,
-            filtered.cov,
-            filtered.log_likelihood,
-            filtered.innovation,
-            filtered.nis,
-            filtered.updated,
-        )
-
-    def _posterior(self, log_lik: np.ndarray, log_c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Log and linear mode probabilities after eq. (26) and the probability floor."""
-        # eq. (26) in log space: mu_j proportional to Lambda_j c_j. The common factor
-        # max_j Lambda_j is divided out first so that huge log-likelihoods keep their precision.
-        best = np.max(log_lik)
-        if not np.isfinite(best):  # every mode rejected the data: keep the predicted odds
-            log_post = log_c.copy()
-        else:
-            log_post = (log_lik - best) + log_c
-        log_mu_new = log_post - logsumexp(log_post)
-        probs = np.exp(log_mu_new)
-        if self.probability_floor > 0.0 and probs.min() < self.probability_floor:
-            probs = floor_probabilities(probs, self.probability_floor)
-            log_mu_new = np.log(probs)
-        return log_mu_new, probs
-
-    def _mix(
-        self, means: np.ndarray, covs: np.ndarray, mixing: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """Mixed initial conditions of eqs. (7)-(8) for every mode j at once."""
-        mixed_mean = mixing.T @ means  # eq. (7): row j is x^0j
-        if self.angle_idx:  # circular mean for angles
-            idx = list(self.angle_idx)
-            mixed_mean[:, idx] = np.arctan2(
-                mixing.T @ np.sin(means[:, idx]), mixing.T @ np.cos(means[:, idx])
-            )
-        spread = means[None, :, :] - mixed_mean[:, None, :]  # [j, i] = x^i - x^0j
-        if self.angle_idx:
-            idx = list(self.angle_idx)
-            spread[:, :, idx] = wrap_angle(spread[:, :, idx])
-        weighted = spread * mixing.T[:, :, None]
-        mixed_cov = np.einsum("ij,iab->jab", mixing, covs) + np.einsum(
-            "jia,jib->jab", weighted, spread
-        )  # eq. (8)
-        return mixed_mean, mixed_cov
-
-    def _combine(
-        self, means: np.ndarray, covs: np.ndarray, probs: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """Combined estimate, eqs. (27)-(28).
-
-        Eq. (28) as printed sums over ``j`` but uses ``x^i`` and ``x^0j``; the standard IMM
-        combination, used here, is ``sum_j mu_j [P^j + (x^j - x)(x^j - x)']``.
+        Returns
+        -------
+        ImmEstimate
+            The estimate at ``t_next_s``.
         """
-        mean = weighted_mean(means.T, probs, self.angle_idx)  # eq. (27)
-        spread = means - mean[None, :]
-        if self.angle_idx:
-            idx = list(self.angle_idx)
-            spread[:, idx] = wrap_angle(spread[:, idx])
-        cov = np.einsum("j,jab->ab", probs, covs) + (spread.T * probs) @ spread
-        return mean, symmetrise(cov)
-
-    def _mix_compiled(self, previous: ImmEstimate) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``log c_j`` (eq. 6) and the mixed initial conditions (eqs. 7-8), compiled."""
+        kern = self.ukf.kernels
         means = np.ascontiguousarray(previous.mode_means, dtype=float)
         covs = np.ascontiguousarray(previous.mode_covs, dtype=float)
         r, nx = means.shape
         log_c = np.empty(r)
         mixed_mean = np.empty((r, nx))
         mixed_cov = np.empty((r, nx, nx))
-        self._kernels.imm_mix(
+        kern.imm_mix(
             self.log_transition,
             np.ascontiguousarray(previous.log_mode_probabilities, dtype=float),
             means,
@@ -293,33 +199,31 @@ class ImmEstimator:
             log_c,
             mixed_mean,
             mixed_cov,
-        )
-        return log_c, mixed_mean, mixed_cov
+        )  # eqs. (6)-(8)
 
-    def _posterior_compiled(
-        self, log_lik: np.ndarray, log_c: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """:meth:`_posterior` compiled."""
-        log_mu = np.empty(log_c.size)
-        probs = np.empty(log_c.size)
-        self._kernels.imm_posterior(
-            np.ascontiguousarray(log_lik, dtype=float), log_c, self.probability_floor, log_mu, probs
-        )
-        return log_mu, probs
+        prior = self.ukf.initial_estimate(previous.t_s, mixed_mean, mixed_cov)
+        filtered = self.ukf.step(prior, t_next_s, u, measurement)  # eqs. (9)-(25)
 
-    def _combine_compiled(
-        self, means: np.ndarray, covs: np.ndarray, probs: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """Eqs. (27)-(28) compiled (the covariance is symmetric by construction)."""
-        nx = means.shape[1]
+        log_mu = np.empty(r)
+        probs = np.empty(r)
+        kern.imm_posterior(
+            filtered.log_likelihood, log_c, self.probability_floor, log_mu, probs
+        )  # eq. (26)
         mean = np.empty(nx)
         cov = np.empty((nx, nx))
-        self._kernels.imm_combine(
-            np.ascontiguousarray(means, dtype=float),
-            np.ascontiguousarray(covs, dtype=float),
-            np.ascontiguousarray(probs, dtype=float),
-            self._angle_mask,
+        kern.imm_combine(
+            filtered.mean, filtered.cov, probs, self._angle_mask, mean, cov
+        )  # eqs. (27)-(28)
+        return ImmEstimate(
+            filtered.t_s,
             mean,
             cov,
+            probs,
+            log_mu,
+            filtered.mean,
+            filtered.cov,
+            filtered.log_likelihood,
+            filtered.innovation,
+            filtered.nis,
+            filtered.updated,
         )
-        return mean, cov

@@ -1,9 +1,8 @@
-"""Guarded linear algebra for batched covariance matrices."""
+"""Guarded Cholesky factorisation for batched covariance matrices: the filter's repairs."""
 
 from __future__ import annotations
 
 import numpy as np
-import scipy.linalg
 
 from immukf_sitl.estimation.diagnostics import FilterDiagnostics
 
@@ -13,13 +12,6 @@ JITTER_TRIES = 4
 #: Eigenvalue floor, relative to the largest eigenvalue, for the last-resort repair.
 EIGEN_FLOOR_REL = 1e-12
 EIGEN_FLOOR_ABS = 1e-300
-
-
-def symmetrise(cov: np.ndarray, diag: FilterDiagnostics | None = None) -> np.ndarray:
-    """Return ``(P + P') / 2`` for a stack of matrices, counting each in ``diag.symmetrised``."""
-    if diag is not None:
-        diag.symmetrised += cov.shape[0] if cov.ndim == 3 else 1
-    return 0.5 * (cov + np.swapaxes(cov, -1, -2))
 
 
 def robust_cholesky(cov: np.ndarray, diag: FilterDiagnostics) -> np.ndarray:
@@ -69,21 +61,3 @@ def _repair_one(cov: np.ndarray, diag: FilterDiagnostics) -> np.ndarray:
     eigval = np.maximum(eigval, floor)
     repaired = (eigvec * eigval) @ eigvec.T
     return np.linalg.cholesky(0.5 * (repaired + repaired.T))
-
-
-def cholesky_solve(factor: np.ndarray, rhs: np.ndarray) -> np.ndarray:
-    """Solve ``(L L') X = rhs`` for stacks ``factor (B, n, n)`` and ``rhs (B, n, m)``."""
-    half = scipy.linalg.solve_triangular(factor, rhs, lower=True, check_finite=False)
-    return scipy.linalg.solve_triangular(factor, half, lower=True, trans="T", check_finite=False)
-
-
-def block_diagonal(blocks: list[np.ndarray], batch: int) -> np.ndarray:
-    """Stack of block-diagonal matrices; each block is ``(n_i, n_i)`` or ``(B, n_i, n_i)``."""
-    size = sum(b.shape[-1] for b in blocks)
-    out = np.zeros((batch, size, size))
-    start = 0
-    for block in blocks:
-        n = block.shape[-1]
-        out[:, start : start + n, start : start + n] = block
-        start += n
-    return out

@@ -3,8 +3,10 @@
 Every function takes the component axis first and any batch axes after it (see
 ``docs/conventions.md``): a state ``x`` of shape ``(nx, *batch)`` and noise of shape
 ``(nv, *batch)``; the control ``u`` is passed through untouched. The argument order is always
-``(t_s, x, u, noise)``. The model is noise-free in the sense that the *filter* chooses the noise
-samples (augmented form) or passes ``None`` and adds the covariance (additive form).
+``(t_s, x, u, noise)``: a filter step from ``t_k`` to ``t_k+1`` calls ``f`` with ``t_k`` (the
+start of the step it integrates) and ``g`` with ``t_k+1`` (the time of the measurement). The
+model is noise-free in the sense that the *filter* chooses the noise samples (augmented form)
+or passes ``None`` and adds the covariance (additive form).
 """
 
 from __future__ import annotations
@@ -14,9 +16,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-#: ``f(t_s, x, u, v) -> x_next`` (eq. 1); ``v`` is ``None`` in the additive-noise form.
+#: ``f(t_s, x, u, v) -> x_next`` (eq. 1) from ``t_s``, the start of the step; ``v`` is ``None``
+#: in the additive-noise form.
 ProcessFn = Callable[[float, np.ndarray, np.ndarray, "np.ndarray | None"], np.ndarray]
-#: ``g(t_s, x, u, w) -> z`` (eq. 2); ``w`` is ``None`` in the additive-noise form.
+#: ``g(t_s, x, u, w) -> z`` (eq. 2) at ``t_s``, the time of the measurement; ``w`` is ``None`` in
+#: the additive-noise form.
 MeasurementFn = Callable[[float, np.ndarray, np.ndarray, "np.ndarray | None"], np.ndarray]
 
 

@@ -20,7 +20,8 @@ from functools import lru_cache
 
 import numpy as np
 
-from immukf_sitl.estimation.angles import weighted_mean, wrap_rows
+from immukf_sitl.estimation import kernels
+from immukf_sitl.estimation.angles import angle_mask
 
 
 @dataclass(frozen=True)
@@ -93,7 +94,9 @@ def _scaled_weights(n: int, alpha: float, beta: float, kappa: float) -> SigmaWei
 
 
 def sigma_points(mean: np.ndarray, sqrt_cov: np.ndarray, spread: float) -> np.ndarray:
-    """Sigma points of eq. (11), batched.
+    """Sigma points of eq. (11), batched: ``[x, x + c L[:, k], x - c L[:, k]]``, ``k < n``.
+
+    Runs the filter's kernel :func:`immukf_sitl.estimation.kernels.state_points`.
 
     Parameters
     ----------
@@ -101,20 +104,17 @@ def sigma_points(mean: np.ndarray, sqrt_cov: np.ndarray, spread: float) -> np.nd
     sqrt_cov : ndarray, shape (B, n, n)
         Any square root ``L`` with ``L L' = P`` (lower Cholesky factor in this package).
     spread : float
-        ``sqrt(n + kappa)`` or the scaled equivalent.
+        ``c = sqrt(n + kappa)`` or the scaled equivalent.
 
     Returns
     -------
     ndarray, shape (n, B, 2n + 1)
         Component axis first, the layout every model function takes.
     """
+    mean = np.ascontiguousarray(mean, dtype=float)
     batch, n = mean.shape
     points = np.empty((n, batch, 2 * n + 1))
-    centre = mean.T[:, :, None]
-    offsets = spread * sqrt_cov.transpose(1, 0, 2)
-    points[:, :, :1] = centre
-    np.add(centre, offsets, out=points[:, :, 1 : n + 1])
-    np.subtract(centre, offsets, out=points[:, :, n + 1 :])
+    kernels.state_points(mean, np.ascontiguousarray(sqrt_cov, dtype=float), float(spread), points)
     return points
 
 
@@ -125,12 +125,16 @@ def unscented_transform(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Mean, covariance and residuals of transformed sigma points (eqs. 16-18, 20).
 
+    ``x^ = sum_s Wm_s X_s``, ``P = sum_s Wc_s (X_s - x^)(X_s - x^)'``; runs the filter's kernel
+    :func:`immukf_sitl.estimation.kernels.predict_moments`.
+
     Parameters
     ----------
     points : ndarray, shape (m, B, s)
     weights : SigmaWeights
     angle_idx : tuple of int
-        Rows that are angles: circular mean, wrapped residuals.
+        Rows that are angles: circular mean ``atan2(sum Wm sin, sum Wm cos)``, wrapped
+        residuals.
 
     Returns
     -------
@@ -138,9 +142,13 @@ def unscented_transform(
     cov : ndarray, shape (B, m, m)
     residuals : ndarray, shape (B, m, s)
     """
-    mean = weighted_mean(points, weights.mean_weights, angle_idx)
-    residuals = points - mean[:, :, None]
-    wrap_rows(residuals, angle_idx)
-    residuals = residuals.transpose(1, 0, 2)
-    cov = (residuals * weights.cov_weights) @ residuals.transpose(0, 2, 1)
-    return mean.T, cov, residuals
+    points = np.ascontiguousarray(points, dtype=float)
+    m, batch, s = points.shape
+    mean = np.empty((batch, m))
+    cov = np.empty((batch, m, m))
+    residuals = np.empty((batch, m, s))
+    kernels.predict_moments(
+        points, np.arange(s), weights.mean_weights, weights.cov_weights,
+        angle_mask(m, angle_idx), np.zeros((m, m)), np.empty_like(points), mean, cov, residuals,
+    )  # fmt: skip
+    return mean, cov, residuals

@@ -12,7 +12,7 @@ IMU channels and, when a fix arrived, the five GPS observables (see ``docs/conve
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
@@ -315,8 +315,7 @@ class AircraftEstimator:
             z = Measurement(np.concatenate([imu, gps]), self.imu_gps_model)
         controls = np.asarray(controls, dtype=float)
         pair = np.stack([self._controls, controls])
-        self.estimate = self.imm.step(self.estimate, self.estimate.t_s, pair, z)
-        self.estimate = replace(self.estimate, t_s=t_s)
+        self.estimate = self.imm.step(self.estimate, t_s, pair, z)
         self._controls = controls
         return self.estimate
 
@@ -400,8 +399,7 @@ class InsEstimator:
         if self.estimate is None:
             raise RuntimeError("initialize() the estimator before step()")
         z = None if gps is None else Measurement(gps, self.gps_model)
-        est = self.imm.step(self.estimate, self.estimate.t_s, self._imu, z)
-        self.estimate = replace(est, t_s=t_s)
+        self.estimate = self.imm.step(self.estimate, t_s, self._imu, z)
         if np.all(np.isfinite(imu)):  # across a gap the last good sample keeps driving
             self._imu = np.array(imu, dtype=float)
         return self.estimate

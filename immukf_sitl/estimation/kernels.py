@@ -1,0 +1,638 @@
+"""The filter's arithmetic, written once: loop kernels of the UKF (eqs. 9-25) and IMM (6-8, 26-28).
+
+Every kernel is a plain Python function in the subset numba compiles, decorated with
+``numba.njit``. The filter calls the compiled functions; the same source run by the interpreter
+(:func:`immukf_sitl.estimation.ukf.load_kernels` with ``"python"``, which loads this module
+with ``numba.config.DISABLE_JIT``) is the uncompiled reference that
+``tests/test_compiled_kernels.py`` compares them with, kernel by kernel and filter by filter.
+The independent checks of the maths (closed-form unscented transforms, the linear Kalman
+filter, filterpy, NEES/NIS, the textbook IMM formulas) run on the compiled kernels.
+
+At the IMM's sizes (7 modes, 12 states, 49 sigma points) an array-expression formulation costs
+more in dispatch than in arithmetic; these loops compute each phase of the step for the whole
+bank in one call. The model functions ``f`` and ``g`` are called by the filter between kernels.
+
+Layouts: sigma points ``(n, B, S)`` (component axis first, as every model function takes them),
+means ``(B, n)``, covariances ``(B, n, n)``, residuals ``(B, n, S)``. Outputs go into arrays
+the caller allocates (boxing arrays returned by a compiled function costs more than the work
+here). Angle components are given as a boolean mask: circular means, wrapped residuals.
+
+Cholesky factors carry a guard: a pivot below ``PIVOT_GUARD_REL`` times its diagonal entry (or
+a non-finite one) makes the kernel report failure, and the caller factors the stack with
+:func:`immukf_sitl.estimation.linalg.robust_cholesky` (LAPACK, then the counted repairs). So
+every repair is decided, and counted, by one piece of code; the guard only keeps a rounding
+difference between this factorisation and LAPACK's from deciding a borderline case (healthy
+filter covariances have pivot ratios above 0.05).
+
+Every kernel behaves the same compiled and interpreted: ``error_model="numpy"`` (division by
+zero gives inf/NaN) is never relied on, and logarithms of zero go through :func:`_log`.
+"""
+
+import math
+
+import numba
+import numpy as np
+
+#: Smallest accepted ``pivot / diagonal`` ratio; below it LAPACK decides (see module docstring).
+PIVOT_GUARD_REL = 1e-10
+TWO_PI = 2.0 * math.pi
+LOG_2PI = math.log(2.0 * math.pi)
+
+
+@numba.njit(cache=True, inline="always", error_model="numpy")
+def wrap(angle):
+    """Wrap to [-pi, pi): ``(a + pi) mod 2 pi - pi`` (Python's float modulo, as numpy's).
+
+    Also the array form: :func:`immukf_sitl.estimation.angles.wrap_angle` runs this function
+    uncompiled on numpy arrays.
+    """
+    return (angle + math.pi) % TWO_PI - math.pi
+
+
+@numba.njit(cache=True, inline="always", error_model="numpy")
+def _log(x):
+    """``log x``, with ``log 0 = -inf`` also when interpreted (``math.log`` raises there)."""
+    if x > 0.0:
+        return math.log(x)
+    return -math.inf if x == 0.0 else math.nan
+
+
+@numba.njit(cache=True, inline="always", error_model="numpy")
+def _fill(a, value):
+    """``a[:, :] = value`` as a loop (array expressions cost compile time)."""
+    for i in range(a.shape[0]):
+        for j in range(a.shape[1]):
+            a[i, j] = value
+
+
+# -- square roots and sigma points (eqs. 9-11) -------------------------------------------------
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _cholesky_into(a, out):
+    """Lower Cholesky factor of the symmetric ``a`` (n, n) into ``out``; False if unsure."""
+    n = a.shape[0]
+    for j in range(n):
+        pivot = a[j, j]
+        for k in range(j):
+            pivot -= out[j, k] * out[j, k]
+        if not pivot > PIVOT_GUARD_REL * a[j, j]:  # also catches NaN and non-positive
+            return False
+        d = math.sqrt(pivot)
+        out[j, j] = d
+        for i in range(j):
+            out[i, j] = 0.0
+        for i in range(j + 1, n):
+            t = a[i, j]
+            for k in range(j):
+                t -= out[i, k] * out[j, k]
+            out[i, j] = t / d
+    return True
+
+
+@numba.njit(cache=True, error_model="numpy")
+def factor(cov, sym, chol):
+    """``sym = (P + P') / 2`` and its lower Cholesky factor ``L L' = sym``, for a stack (B, n, n).
+
+    Returns False when any factor failed the pivot guard (``chol`` is then incomplete).
+    """
+    batch, n, _ = cov.shape
+    ok = True
+    for b in range(batch):
+        for i in range(n):
+            for j in range(n):
+                sym[b, i, j] = 0.5 * (cov[b, i, j] + cov[b, j, i])
+        if not _cholesky_into(sym[b], chol[b]):
+            ok = False
+    return ok
+
+
+@numba.njit(cache=True, error_model="numpy")
+def state_points(mean, sqrt_cov, spread, out):
+    """Eq. (11): ``[x, x + c L[:, 0..n-1], x - c L[:, 0..n-1]]`` into ``out`` (n, B, 2n + 1).
+
+    ``mean`` (B, n), ``sqrt_cov`` (B, n, n) any ``L`` with ``L L' = P``, ``spread`` the ``c``
+    of the sigma-point scheme.
+    """
+    batch, n = mean.shape
+    for b in range(batch):
+        for i in range(n):
+            m = mean[b, i]
+            out[i, b, 0] = m
+            for c in range(n):
+                off = spread * sqrt_cov[b, i, c]
+                out[i, b, 1 + c] = m + off
+                out[i, b, 1 + n + c] = m - off
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _noise_rows(noise_sqrt, spread, first, half, b, out):
+    """Noise rows of augmented sigma points (eqs. 9-11: zero mean, ``+- c`` times ``sqrt(Q)``).
+
+    Row ``i`` of ``out[:, b, :]`` is zero but for ``+ c L[i, k]`` at column ``1 + first + k``
+    and ``- c L[i, k]`` at column ``1 + half + first + k``.
+    """
+    n_rows, n_dirs = noise_sqrt.shape
+    for i in range(n_rows):
+        for s in range(out.shape[2]):
+            out[i, b, s] = 0.0
+        for k in range(n_dirs):
+            off = spread * noise_sqrt[i, k]
+            out[i, b, 1 + first + k] = 0.0 + off
+            out[i, b, 1 + half + first + k] = 0.0 - off
+
+
+@numba.njit(cache=True, error_model="numpy")
+def augmented_process_points(mean, chol, noise_sqrt, spread, x_out, v_out):
+    """The ``(x, v)`` parts of the augmented sigma points (eqs. 9-11) whose ``(x, v)`` differ.
+
+    Columns: the centre, ``+`` the ``nx + nv`` state and process-noise directions, ``-`` the
+    same: ``x_out`` (nx, B, nd), ``v_out`` (nv, B, nd) with ``nd = 1 + 2 (nx + nv)``. The
+    points that perturb only the measurement noise share the centre's ``(x, v)``.
+    """
+    batch, nx = mean.shape
+    nxv = nx + noise_sqrt.shape[0]
+    for b in range(batch):
+        for i in range(nx):
+            m = mean[b, i]
+            x_out[i, b, 0] = m
+            for c in range(nx):
+                off = spread * chol[b, i, c]
+                x_out[i, b, 1 + c] = m + off
+                x_out[i, b, 1 + nxv + c] = m - off
+            for c in range(nx, nxv):
+                x_out[i, b, 1 + c] = m
+                x_out[i, b, 1 + nxv + c] = m
+        _noise_rows(noise_sqrt, spread, nx, nxv, b, v_out)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def measurement_noise_points(noise_sqrt, spread, n_xv, out):
+    """The ``w`` rows of the augmented sigma points (eqs. 9-11) into ``out`` (nw, B, S).
+
+    ``S = 2 n_a + 1`` with ``n_a = n_xv + nw``: only the ``2 nw`` columns after the ``(x, v)``
+    directions of each sign are non-zero.
+    """
+    n_aug = n_xv + noise_sqrt.shape[1]
+    for b in range(out.shape[1]):
+        _noise_rows(noise_sqrt, spread, n_xv, n_aug, b, out)
+
+
+# -- the unscented transform (eqs. 12, 16-18, 20) ----------------------------------------------
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _wrap_columns(cols, angle):
+    """Wrap the angle columns of ``cols`` (S, n) in place.
+
+    The angle test sits outside the loop over samples: inside it, LLVM if-converts the branch
+    and evaluates the modulo (a libm call) for every element.
+    """
+    n_sigma, n = cols.shape
+    for i in range(n):
+        if angle[i]:
+            for s in range(n_sigma):
+                cols[s, i] = wrap(cols[s, i])
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _gather_moments(points, b, src, wm, angle, cols, mean, sines, cosines):
+    """Columns ``points[:, b, src[s]]`` into ``cols`` (S, n) and their weighted mean (eq. 16).
+
+    Sums run over ``s`` in order for every row at once (independent chains, so they pipeline);
+    angle rows get the circular mean ``atan2(sum w sin, sum w cos)``, with one sine and cosine
+    per distinct column (``sines``, ``cosines``: scratch of the distinct count).
+    """
+    n = points.shape[0]
+    nd = points.shape[2]
+    n_sigma = src.size
+    for i in range(n):
+        mean[i] = 0.0
+    for s in range(n_sigma):
+        d = src[s]
+        w = wm[s]
+        for i in range(n):
+            value = points[i, b, d]
+            cols[s, i] = value
+            mean[i] += value * w
+    for i in range(n):
+        if angle[i]:
+            for d in range(nd):
+                sines[d] = math.sin(points[i, b, d])
+                cosines[d] = math.cos(points[i, b, d])
+            sin_sum = 0.0
+            cos_sum = 0.0
+            for s in range(n_sigma):
+                sin_sum += sines[src[s]] * wm[s]
+                cos_sum += cosines[src[s]] * wm[s]
+            mean[i] = math.atan2(sin_sum, cos_sum)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _centre_columns(cols, mean, angle):
+    """``cols[s] -= mean`` in place, angle rows wrapped: the residuals, (S, n)."""
+    n_sigma, n = cols.shape
+    for s in range(n_sigma):
+        for i in range(n):
+            cols[s, i] -= mean[i]
+    _wrap_columns(cols, angle)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _weighted_outer(rt, weights, acc):
+    """``acc = sum_s (r_s w_s) r_s'`` for rows ``rt[s]`` (full square; callers read i >= j)."""
+    n_sigma, n = rt.shape
+    _fill(acc, 0.0)
+    for s in range(n_sigma):
+        w = weights[s]
+        for i in range(n):
+            a = rt[s, i] * w
+            for j in range(n):
+                acc[i, j] += a * rt[s, j]
+
+
+@numba.njit(cache=True, error_model="numpy")
+def predict_moments(moved, src, wm, wc, angle, add_cov, x_points, mean, cov, res):
+    """Eqs. (16)-(18): the transformed sigma points and their weighted moments.
+
+    ``moved`` (nx, B, nd) holds ``f`` of the distinct columns (eq. 14); column ``s`` of the full
+    set is ``moved[:, :, src[s]]`` (``src`` is the identity when every column is distinct).
+    Writes the full points ``x_points`` (nx, B, S), ``mean`` (B, nx) (eq. 16), ``cov``
+    (B, nx, nx) ``= sum_s Wc_s r_s r_s' + add_cov`` (eq. 18; symmetric by construction) and
+    the residuals ``r_s`` (eq. 17; angle rows wrapped) into ``res`` (B, nx, S).
+    """
+    nx, batch, nd = moved.shape
+    n_sigma = src.size
+    rt = np.empty((n_sigma, nx))
+    acc = np.empty((nx, nx))
+    m = np.empty(nx)
+    sines = np.empty(nd)
+    cosines = np.empty(nd)
+    for b in range(batch):
+        _gather_moments(moved, b, src, wm, angle, rt, m, sines, cosines)
+        for i in range(nx):
+            mean[b, i] = m[i]
+            for s in range(n_sigma):
+                x_points[i, b, s] = rt[s, i]
+        _centre_columns(rt, m, angle)
+        for i in range(nx):
+            for s in range(n_sigma):
+                res[b, i, s] = rt[s, i]
+        _weighted_outer(rt, wc, acc)
+        for i in range(nx):
+            for j in range(i + 1):
+                value = acc[i, j] + add_cov[i, j]
+                cov[b, i, j] = value
+                cov[b, j, i] = value
+
+
+@numba.njit(cache=True, error_model="numpy")
+def centred(points, mean, angle, res):
+    """``res[b, :, s] = points[:, b, s] - mean[b]`` (B, n, S), angle rows wrapped."""
+    n, batch, n_sigma = points.shape
+    for b in range(batch):
+        for i in range(n):
+            m = mean[b, i]
+            for s in range(n_sigma):
+                res[b, i, s] = points[i, b, s] - m
+            if angle[i]:
+                for s in range(n_sigma):
+                    res[b, i, s] = wrap(res[b, i, s])
+
+
+# -- the measurement update (eqs. 19-25) -------------------------------------------------------
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _output_moments(
+    b, z_points, src, wm, wc, z_angle, add_r, x_res, z, zr, zm, xw, sines, cosines, acc,
+    z_cov, cross, innovation,
+):  # fmt: skip
+    """Eqs. (17), (19)-(21) for filter ``b``: ``P_zz + add_r``, ``P_zx`` and the innovation."""
+    nz, _, n_sigma = z_points.shape
+    nx = x_res.shape[1]
+    _gather_moments(z_points, b, src, wm, z_angle, zr, zm, sines, cosines)  # eq. (17)
+    for i in range(nz):
+        innovation[b, i] = z[i] - zm[i]  # eq. (21)
+    _wrap_columns(innovation[b : b + 1], z_angle)
+    _centre_columns(zr, zm, z_angle)
+    _weighted_outer(zr, wc, acc)  # eq. (20)
+    for i in range(nz):
+        for j in range(i + 1):
+            value = acc[i, j] + add_r[i, j]
+            z_cov[b, i, j] = value
+            z_cov[b, j, i] = value
+    # eq. (19), transposed: P_zx[c, a] = sum_s z~_s[c] (x~_s[a] w_s)
+    for s in range(n_sigma):
+        w = wc[s]
+        for a in range(nx):
+            xw[s, a] = x_res[b, a, s] * w
+    for c in range(nz):
+        for a in range(nx):
+            cross[b, c, a] = 0.0
+    for s in range(n_sigma):
+        for c in range(nz):
+            zc = zr[s, c]
+            for a in range(nx):
+                cross[b, c, a] += xw[s, a] * zc
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _gain_update(
+    b, pred_mean, pred_cov, cross, innovation, z_chol, x_angle, white, white_innov, outer,
+    new_mean, new_cov, nis, log_lik,
+):  # fmt: skip
+    """Eqs. (22)-(25) for filter ``b`` from the lower factor ``L`` of ``P_zz``.
+
+    The gain is never formed: with ``W = L^-1 P_zx`` and ``e = L^-1 z~``, ``K = W' L^-1``
+    (eq. 24), so ``x = x^- + W' e`` (eq. 22) and ``P = P^- - W' W`` (eq. 23 with the Kalman
+    sign; the paper prints ``+ K P_zz K'``). ``NIS = e' e``; eq. (25) in log space,
+    ``log Lambda = -(NIS + log det P_zz + nz log 2 pi) / 2`` (its printed exponent lacks the
+    minus sign).
+    """
+    nz = innovation.shape[1]
+    nx = pred_mean.shape[1]
+    chol = z_chol[b]
+    # forward substitution: white = L^-1 P_zx, white_innov = L^-1 z~
+    for i in range(nz):
+        d = chol[i, i]
+        t = innovation[b, i]
+        for k in range(i):
+            t -= chol[i, k] * white_innov[k]
+        white_innov[i] = t / d
+        for a in range(nx):
+            white[i, a] = cross[b, i, a]
+        for k in range(i):
+            lik = chol[i, k]
+            for a in range(nx):
+                white[i, a] -= lik * white[k, a]
+        for a in range(nx):
+            white[i, a] /= d
+    total = 0.0
+    half_log_det = 0.0
+    for i in range(nz):
+        total += white_innov[i] * white_innov[i]
+        half_log_det += math.log(chol[i, i])
+    nis[b] = total
+    log_lik[b] = -0.5 * (total + 2.0 * half_log_det + nz * LOG_2PI)  # eq. (25)
+    for a in range(nx):  # eq. (22)
+        gain_innov = 0.0
+        for i in range(nz):
+            gain_innov += white[i, a] * white_innov[i]
+        new_mean[b, a] = pred_mean[b, a] + gain_innov
+    _wrap_columns(new_mean[b : b + 1], x_angle)
+    _fill(outer, 0.0)  # eq. (23): P - W'W, symmetric by construction
+    for i in range(nz):
+        for a in range(nx):
+            wa = white[i, a]
+            for c in range(nx):
+                outer[a, c] += wa * white[i, c]
+    for a in range(nx):
+        for c in range(a + 1):
+            value = pred_cov[b, a, c] - outer[a, c]
+            new_cov[b, a, c] = value
+            new_cov[b, c, a] = value
+
+
+@numba.njit(cache=True, error_model="numpy")
+def update(
+    pred_mean, pred_cov, x_res, z_points, wm, wc, z_angle, x_angle, z, add_r, z_cov, cross,
+    innovation, z_chol, new_mean, new_cov, nis, log_lik,
+):  # fmt: skip
+    """Eqs. (17), (19)-(25): output moments, innovation and the Kalman update of every filter.
+
+    ``z_cov`` (B, nz, nz) gets ``P_zz + add_r`` (eq. 20; ``add_r`` is ``R`` in the additive
+    form, zeros in the augmented one), ``cross`` (B, nz, nx) ``P_zx`` (eq. 19), ``innovation``
+    (B, nz) ``z - z^`` (eq. 21, angles wrapped), ``z_chol`` the factors of ``P_zz``; then
+    :func:`gain_update`'s outputs. Returns False when a factor failed the pivot guard: the
+    caller then factors ``z_cov`` itself and calls :func:`gain_update` (the outputs after
+    ``z_chol`` are incomplete).
+    """
+    nz, batch, n_sigma = z_points.shape
+    nx = pred_mean.shape[1]
+    src = np.arange(n_sigma)
+    zr = np.empty((n_sigma, nz))
+    zm = np.empty(nz)
+    xw = np.empty((n_sigma, nx))
+    sines = np.empty(n_sigma)
+    cosines = np.empty(n_sigma)
+    acc = np.empty((nz, nz))
+    white = np.empty((nz, nx))
+    white_innov = np.empty(nz)
+    outer = np.empty((nx, nx))
+    ok = True
+    for b in range(batch):
+        _output_moments(
+            b, z_points, src, wm, wc, z_angle, add_r, x_res, z, zr, zm, xw, sines, cosines, acc,
+            z_cov, cross, innovation,
+        )  # fmt: skip
+        if _cholesky_into(z_cov[b], z_chol[b]):
+            _gain_update(
+                b, pred_mean, pred_cov, cross, innovation, z_chol, x_angle, white, white_innov,
+                outer, new_mean, new_cov, nis, log_lik,
+            )  # fmt: skip
+        else:
+            ok = False
+    return ok
+
+
+@numba.njit(cache=True, error_model="numpy")
+def gain_update(
+    pred_mean, pred_cov, cross, innovation, z_chol, x_angle, new_mean, new_cov, nis, log_lik
+):
+    """Eqs. (22)-(25) of every filter from given factors ``z_chol`` of ``P_zz`` (see
+    :func:`_gain_update`): ``new_mean`` (B, nx), ``new_cov`` (B, nx, nx), ``nis`` and
+    ``log_lik`` (B,)."""
+    nz = innovation.shape[1]
+    nx = pred_mean.shape[1]
+    white = np.empty((nz, nx))
+    white_innov = np.empty(nz)
+    outer = np.empty((nx, nx))
+    for b in range(pred_mean.shape[0]):
+        _gain_update(
+            b, pred_mean, pred_cov, cross, innovation, z_chol, x_angle, white, white_innov, outer,
+            new_mean, new_cov, nis, log_lik,
+        )  # fmt: skip
+
+
+# -- the IMM (eqs. 6-8, 26-28) -----------------------------------------------------------------
+
+
+@numba.njit(cache=True, error_model="numpy")
+def imm_mix(log_transition, log_mu, means, covs, angle, log_c, mixed_mean, mixed_cov):
+    """Eqs. (6)-(8) in log space for every mode ``j``: ``log c_j``, ``x^0j``, ``P^0j``.
+
+    ``c_j = sum_i p_ij mu_i`` (eq. 6) and ``mu_{i|j} = p_ij mu_i / c_j``;
+    ``x^0j = sum_i mu_{i|j} x^i`` (eq. 7, circular for angles);
+    ``P^0j = sum_i mu_{i|j} [P^i + (x^i - x^0j)(x^i - x^0j)']`` (eq. 8).
+    """
+    r, nx = means.shape
+    mixing = np.empty((r, r))
+    spread = np.empty((r, nx))
+    row = np.empty(nx)
+    for j in range(r):
+        peak = -math.inf
+        for i in range(r):
+            value = log_transition[i, j] + log_mu[i]
+            mixing[i, j] = value
+            if value > peak:
+                peak = value
+        if not math.isfinite(peak):
+            peak = 0.0
+        total = 0.0
+        for i in range(r):
+            total += math.exp(mixing[i, j] - peak)
+        log_c[j] = _log(total) + peak  # eq. (6): c_j
+        for i in range(r):
+            mixing[i, j] = math.exp(mixing[i, j] - log_c[j])  # mu_{i|j}
+    sines = np.zeros((r, nx))
+    cosines = np.zeros((r, nx))
+    for a in range(nx):
+        if angle[a]:
+            for i in range(r):
+                sines[i, a] = math.sin(means[i, a])
+                cosines[i, a] = math.cos(means[i, a])
+    for j in range(r):
+        for a in range(nx):  # eq. (7), circular for angles
+            if angle[a]:
+                s_sum = 0.0
+                c_sum = 0.0
+                for i in range(r):
+                    s_sum += mixing[i, j] * sines[i, a]
+                    c_sum += mixing[i, j] * cosines[i, a]
+                mixed_mean[j, a] = math.atan2(s_sum, c_sum)
+            else:
+                total = 0.0
+                for i in range(r):
+                    total += mixing[i, j] * means[i, a]
+                mixed_mean[j, a] = total
+        for i in range(r):
+            for a in range(nx):
+                spread[i, a] = means[i, a] - mixed_mean[j, a]
+        _wrap_columns(spread, angle)
+        for a in range(nx):  # eq. (8)
+            for c in range(nx):
+                row[c] = 0.0
+            for i in range(r):
+                w = mixing[i, j]
+                wa = spread[i, a] * w
+                for c in range(nx):
+                    row[c] += w * covs[i, a, c] + wa * spread[i, c]
+            for c in range(nx):
+                mixed_cov[j, a, c] = row[c]
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _nan_max(values):
+    """``np.max`` of a 1-D array: NaN if any element is NaN."""
+    peak = -math.inf
+    for v in values:
+        if math.isnan(v):
+            return math.nan
+        if v > peak:
+            peak = v
+    return peak
+
+
+@numba.njit(cache=True, error_model="numpy")
+def floor_probabilities(probs, floor, log_probs):
+    """Raise every probability to at least ``floor``, taking the mass from the others pro rata.
+
+    In place on ``probs`` (r,), which sums to one; ``log_probs`` gets the logarithms of the
+    changed result. Probabilities below the floor are set to it; the rest are scaled to share
+    what is left, repeated until none falls below (at most ``r`` rounds); the result sums to
+    one. Nothing changes when the floor is 0, no probability is below it, or one is NaN.
+    """
+    r = probs.size
+    lowest = math.inf
+    for j in range(r):
+        if math.isnan(probs[j]):  # as np.min
+            return
+        lowest = min(lowest, probs[j])
+    if not (floor > 0.0 and lowest < floor):
+        return
+    fixed = np.empty(r, dtype=np.bool_)
+    scaled = np.empty(r)
+    for j in range(r):
+        fixed[j] = probs[j] < floor
+    for _ in range(r):
+        n_fixed = 0
+        free_sum = 0.0
+        for j in range(r):
+            if fixed[j]:
+                n_fixed += 1
+            else:
+                free_sum += probs[j]
+        scale = (1.0 - floor * n_fixed) / free_sum
+        changed = False
+        for j in range(r):
+            scaled[j] = probs[j] * scale
+            if not fixed[j] and scaled[j] < floor:
+                fixed[j] = True
+                changed = True
+        if not changed:
+            break
+    for j in range(r):
+        probs[j] = floor if fixed[j] else scaled[j]
+        log_probs[j] = math.log(probs[j])
+
+
+@numba.njit(cache=True, error_model="numpy")
+def imm_posterior(log_lik, log_c, floor, log_mu, probs):
+    """Eq. (26) in log space, then :func:`floor_probabilities`.
+
+    ``mu_j = Lambda_j c_j / sum_i Lambda_i c_i``; the common factor ``max_j Lambda_j`` is divided
+    out first so that huge log-likelihoods keep their precision; when no likelihood is finite
+    (every mode rejected the data) the predicted odds ``c_j`` are kept.
+    """
+    r = log_lik.size
+    best = _nan_max(log_lik)
+    for j in range(r):
+        log_mu[j] = log_c[j] if not math.isfinite(best) else (log_lik[j] - best) + log_c[j]
+    peak = _nan_max(log_mu)
+    if not math.isfinite(peak):
+        peak = 0.0
+    total = 0.0
+    for j in range(r):
+        total += math.exp(log_mu[j] - peak)
+    log_norm = _log(total) + peak
+    for j in range(r):
+        log_mu[j] -= log_norm
+        probs[j] = math.exp(log_mu[j])
+    floor_probabilities(probs, floor, log_mu)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def imm_combine(means, covs, probs, angle, mean, cov):
+    """Eqs. (27)-(28): the probability-weighted mean (circular for angles) and covariance.
+
+    Eq. (28) as printed sums over ``j`` but uses ``x^i`` and ``x^0j``; the standard IMM
+    combination, used here, is ``P = sum_j mu_j [P^j + (x^j - x)(x^j - x)']`` (symmetric by
+    construction).
+    """
+    r, nx = means.shape
+    spread = np.empty((r, nx))
+    for a in range(nx):
+        if angle[a]:
+            s_sum = 0.0
+            c_sum = 0.0
+            for j in range(r):
+                s_sum += math.sin(means[j, a]) * probs[j]
+                c_sum += math.cos(means[j, a]) * probs[j]
+            mean[a] = math.atan2(s_sum, c_sum)
+        else:
+            total = 0.0
+            for j in range(r):
+                total += means[j, a] * probs[j]
+            mean[a] = total
+    for j in range(r):
+        for a in range(nx):
+            spread[j, a] = means[j, a] - mean[a]
+    _wrap_columns(spread, angle)
+    for a in range(nx):
+        for c in range(a + 1):
+            total = 0.0
+            for j in range(r):
+                total += probs[j] * (covs[j, a, c] + spread[j, a] * spread[j, c])
+            cov[a, c] = total
+            cov[c, a] = total
