@@ -23,11 +23,11 @@ def fault_free() -> FlightLog:
 def _run(log: FlightLog, stream) -> tuple[ReplayResult, dict]:
     damaged = dataclasses.replace(log, stream=list(stream))
     result = replay(damaged, EstimatorPipeline(load_aircraft_params()))
-    return result, summary_of(result, "damaged")
+    return result, summary_of(result, "damaged").to_json()
 
 
 def _final_attitude_error_deg(result: ReplayResult, log: FlightLog) -> float:
-    last = result.outputs[-1]
+    last = result.history.outputs[-1]
     truth = min(log.truth, key=lambda s: abs(s.t_s - last.t_s))
     err = (last.nav.euler_rad - truth.euler_rad + np.pi) % (2 * np.pi) - np.pi
     return float(np.degrees(np.abs(err)).max())
@@ -69,6 +69,6 @@ def test_a_corrupt_sample_does_not_leave_the_estimate_ruined(fault_free):
             s = ImuSample(s.time_s, [1e6, 0.0, -9.8], s.gyro_radps)
         stream.append(s)
     result, summary = _run(fault_free, stream)
-    assert all(np.all(np.isfinite(o.nav.euler_rad)) for o in result.outputs)
+    assert all(np.all(np.isfinite(o.nav.euler_rad)) for o in result.history.outputs)
     assert _final_attitude_error_deg(result, fault_free) < 2.0
     assert summary["false_alarms"] <= 1  # the spike itself may be declared an x fault

@@ -22,7 +22,7 @@ def replays():
     for name in ("fault_free", "q_gyro_zeroed"):
         log = read_flight_log(DATA / f"{name}.tlog")
         result = replay(log, EstimatorPipeline(load_aircraft_params(), PipelineConfig()))
-        out[name] = (log, result, summary_of(result, log.scenario or name))
+        out[name] = (log, result, summary_of(result, log.scenario or name).to_json())
     return out
 
 
@@ -57,7 +57,7 @@ def test_fault_free_flight_declares_nothing(replays):
     # margin: after settling, no fault mode stays above 0.5 for even half the 0.2 s dwell
     # (brief spikes happen where a channel's true value crosses zero, see README "Tuning")
     longest = run = 0
-    for o in result.outputs:
+    for o in result.history.outputs:
         run = run + 1 if o.t_s > 3.5 and o.mode_probabilities[1:].max() > 0.5 else 0
         longest = max(longest, run)
     assert longest * 0.01 < 0.1

@@ -3,9 +3,12 @@
 import numpy as np
 import pytest
 
-from immukf_sitl.experiments.report import EstimateTrack, EventRecord, estimation_errors, summarize
+from immukf_sitl.estimation.fault_modes import FaultMode
+from immukf_sitl.experiments.report import EstimateTrack, estimation_errors, summarize
 from immukf_sitl.samples import TruthSample
 from immukf_sitl.scenario import ExpectSpec, FaultSpec
+from immukf_sitl.service.detection import DetectionEvent
+from immukf_sitl.service.timing import TimingStats
 
 DT = 0.01
 
@@ -33,9 +36,9 @@ def test_delay_counts_from_when_the_fault_became_observable():
     # q is 0 until 2.0 s, then 0.05 rad/s (22 sigma): a zeroed q gyro is observable from 2.0 s
     truth = _truth(400, lambda t: 0.05 if t >= 2.0 else 0.0)
     fault = FaultSpec(1.0, ("q",), "zero")
-    events = [EventRecord("detected", "q", 2.3, 0.97)]
-    s = summarize("t", [fault], truth, events, _track(truth), {"median": 500.0, "p99": 900.0},
-                  expect=ExpectSpec("q", 1.0))  # fmt: skip
+    events = [DetectionEvent("detected", FaultMode.from_name("q"), 2.3, 0.97)]
+    s = summarize("t", [fault], truth, events, _track(truth), TimingStats(600.0, 500.0, 900.0),
+                  expect=ExpectSpec("q", 1.0)).to_json()  # fmt: skip
     (row,) = s["faults"]
     assert row["observable_t_s"] == pytest.approx(2.0)
     assert row["detection_delay_s"] == pytest.approx(0.3)
@@ -47,11 +50,13 @@ def test_wrong_mode_or_early_detection_is_a_false_alarm():
     truth = _truth(400, lambda t: 0.05)
     fault = FaultSpec(2.0, ("q",), "zero")
     events = [
-        EventRecord("detected", "p", 1.0, 0.95),  # before any fault
-        EventRecord("detected", "r", 2.5, 0.95),  # wrong channel
-        EventRecord("detected", "q", 2.6, 0.99),
+        DetectionEvent("detected", FaultMode.from_name("p"), 1.0, 0.95),  # before any fault
+        DetectionEvent("detected", FaultMode.from_name("r"), 2.5, 0.95),  # wrong channel
+        DetectionEvent("detected", FaultMode.from_name("q"), 2.6, 0.99),
     ]
-    s = summarize("t", [fault], truth, events, _track(truth), {}, expect=ExpectSpec("q", 1.0))
+    s = summarize(
+        "t", [fault], truth, events, _track(truth), TimingStats(), expect=ExpectSpec("q", 1.0)
+    ).to_json()
     assert s["false_alarms"] == 2
     assert [d["mode"] for d in s["false_alarm_detections"]] == ["p", "r"]
     assert s["faults"][0]["detection_delay_s"] == pytest.approx(0.6)
@@ -60,7 +65,9 @@ def test_wrong_mode_or_early_detection_is_a_false_alarm():
 
 def test_unobservable_fault_has_no_observable_time_and_no_delay():
     truth = _truth(300)  # q stays 0: a zeroed q gyro reads what a healthy one would
-    s = summarize("t", [FaultSpec(1.0, ("q",), "zero")], truth, [], _track(truth), {})
+    s = summarize(
+        "t", [FaultSpec(1.0, ("q",), "zero")], truth, [], _track(truth), TimingStats()
+    ).to_json()
     assert s["faults"][0]["observable_t_s"] is None
     assert s["faults"][0]["detection_delay_s"] is None
 

@@ -15,7 +15,7 @@ def test_late_observable_faults_are_identified_and_no_fix_is_lost(name):
     # p and y are the channels that hide longest in this plan; 90 s lets the GPS error wander
     scenario = load_scenario(SCENARIOS / f"{name}.yaml")
     run = run_inprocess(scenario)
-    summary = run.summary()
+    summary = run.summary().to_json()
     assert summary["expectation"]["met"], summary["faults"]
     assert summary["false_alarms"] == 0
     counters = run.pipeline.counters

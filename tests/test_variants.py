@@ -18,7 +18,9 @@ def _errors(tlog: str, variant: str, true_mode: str | None = None) -> dict:
         variant=variant, true_mode=FaultMode.from_name(true_mode) if true_mode else None
     )
     log = read_flight_log(DATA / tlog)
-    summary = summary_of(replay(log, EstimatorPipeline(load_aircraft_params(), config)), "v")
+    summary = summary_of(
+        replay(log, EstimatorPipeline(load_aircraft_params(), config)), "v"
+    ).to_json()
     assert summary["detections"] == []  # a single filter declares nothing
     return summary["est_error"]
 

@@ -14,67 +14,33 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numpy as np
-
-from immukf_sitl.experiments.report import EstimateTrack, EventRecord, summarize
+from immukf_sitl.experiments.report import EstimateHistory, Summary, summarize
 from immukf_sitl.models.params import load_aircraft_params
 from immukf_sitl.samples import ActuatorSample, TruthSample
 from immukf_sitl.scenario import Scenario
 from immukf_sitl.service.pipeline import EstimateOutput, EstimatorPipeline, PipelineConfig
 from sim.fault_proxy import FaultInjector
 from sim.scenario_flight import flight_from_scenario
-from sim.truth import TruthState
 
 
-def truth_sample(truth: TruthState) -> TruthSample:
-    """The sim's truth as the record a flight tlog holds."""
-    return TruthSample(
-        truth.time_s,
-        truth.lat_deg,
-        truth.lon_deg,
-        truth.alt_m,
-        np.asarray(truth.euler_rad),
-        np.asarray(truth.rates_body_radps),
-        np.asarray(truth.velocity_ned_mps),
-        np.asarray(truth.specific_force_body_mps2),
-    )
-
-
-@dataclass
+@dataclass(frozen=True)
 class InProcessRun:
     """Outputs of the estimator and the truth of one in-process flight."""
 
     scenario: Scenario
-    outputs: list[EstimateOutput]
-    truth: list[TruthSample]
+    history: EstimateHistory
+    truth: tuple[TruthSample, ...]
     pipeline: EstimatorPipeline
 
-    def summary(self) -> dict:
+    def summary(self) -> Summary:
         """The run/replay summary."""
-        t = np.array([o.t_s for o in self.outputs])
-        track = EstimateTrack(
-            t,
-            np.array([o.nav.euler_rad for o in self.outputs]).reshape(-1, 3),
-            t,
-            np.array([(o.lat_deg, o.lon_deg, o.alt_m) for o in self.outputs]).reshape(-1, 3),
-        )
-        events = [
-            EventRecord(e.kind, e.mode.name, e.t_s, e.probability)
-            for o in self.outputs
-            for e in o.events
-        ]
-        steps = np.array([o.step_us for o in self.outputs])
-        step_us = {
-            "median": float(np.median(steps)) if steps.size else None,
-            "p99": float(np.percentile(steps, 99)) if steps.size else None,
-        }
         return summarize(
             self.scenario.name,
             self.scenario.faults,
             self.truth,
-            events,
-            track,
-            step_us,
+            self.history.events(),
+            self.history.track(),
+            self.history.step_us(),
             self.scenario.sensors.imu,
             self.scenario.expect,
             settle_s=self.pipeline.config.detector.settle_s,
@@ -104,7 +70,7 @@ def run_inprocess(
         if record.gps is not None:
             pipeline.on_gps(record.gps)
         out = pipeline.on_imu(injector.apply(record.imu))
-        truth.append(truth_sample(record.truth))
+        truth.append(record.truth.sample())
         if out is not None:
             outputs.append(out)
-    return InProcessRun(scenario, outputs, truth, pipeline)
+    return InProcessRun(scenario, EstimateHistory(tuple(outputs)), tuple(truth), pipeline)

@@ -9,6 +9,7 @@ truth, estimation errors.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 from dataclasses import dataclass
@@ -18,50 +19,26 @@ import numpy as np
 
 from immukf_sitl.errors import UserError
 from immukf_sitl.experiments.report import (
-    EstimateTrack,
-    EventRecord,
+    EstimateHistory,
+    Summary,
     human_summary,
     plot_summary,
     summarize,
 )
 from immukf_sitl.mavlink.flightlog import FlightLog, read_flight_log
+from immukf_sitl.mavlink.publish import probability_name
 from immukf_sitl.options import FilterOptions, add_json_argument
 from immukf_sitl.samples import ActuatorSample, GpsSample, ImuSample
 from immukf_sitl.service.pipeline import EstimateOutput, EstimatorPipeline
 
 
-@dataclass
+@dataclass(frozen=True)
 class ReplayResult:
     """Everything a replay produced."""
 
-    outputs: list[EstimateOutput]
+    history: EstimateHistory
     log: FlightLog
     pipeline: EstimatorPipeline
-
-    def events(self) -> list[EventRecord]:
-        """Detections and clearings in time order."""
-        return [
-            EventRecord(e.kind, e.mode.name, e.t_s, e.probability)
-            for out in self.outputs
-            for e in out.events
-        ]
-
-    def track(self) -> EstimateTrack:
-        """The estimate over time (every step)."""
-        t = np.array([o.t_s for o in self.outputs])
-        return EstimateTrack(
-            t,
-            np.array([o.nav.euler_rad for o in self.outputs]).reshape(-1, 3),
-            t,
-            np.array([(o.lat_deg, o.lon_deg, o.alt_m) for o in self.outputs]).reshape(-1, 3),
-        )
-
-    def step_us(self) -> dict:
-        """Median and p99 of the filter step (us)."""
-        steps = np.array([o.step_us for o in self.outputs])
-        if steps.size == 0:
-            return {"median": None, "p99": None}
-        return {"median": float(np.median(steps)), "p99": float(np.percentile(steps, 99))}
 
 
 def replay(log: FlightLog, pipeline: EstimatorPipeline, progress: bool = False) -> ReplayResult:
@@ -79,32 +56,28 @@ def replay(log: FlightLog, pipeline: EstimatorPipeline, progress: bool = False) 
             pipeline.on_actuators(sample)
         if progress and i % 20000 == 0:
             print(f"replay: {100 * i / max(n, 1):.0f} %", file=sys.stderr, flush=True)
-    return ReplayResult(outputs, log, pipeline)
+    return ReplayResult(EstimateHistory(tuple(outputs)), log, pipeline)
 
 
-def summary_of(result: ReplayResult, scenario_name: str) -> dict:
+def summary_of(result: ReplayResult, scenario_name: str) -> Summary:
     """The run-style summary of a replay."""
+    history = result.history
     return summarize(
         scenario_name,
         [f.spec() for f in result.log.faults],
         result.log.truth,
-        result.events(),
-        result.track(),
-        result.step_us(),
+        history.events(),
+        history.track(),
+        history.step_us(),
         settle_s=result.pipeline.config.detector.settle_s,
     )
 
 
 def probability_series(result: ReplayResult) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """Mode probabilities over time, keyed by their MAVLink names."""
-    from immukf_sitl.mavlink.publish import probability_name
-
-    if not result.outputs:
-        return np.zeros(0), {}
-    t = np.array([o.t_s for o in result.outputs])
-    probs = np.array([o.mode_probabilities for o in result.outputs])
-    names = [probability_name(m) for m in result.outputs[0].modes]
-    return t, {name: probs[:, j] for j, name in enumerate(names)}
+    outputs = result.history.outputs
+    names = [probability_name(m) for m in outputs[0].modes] if outputs else []
+    return result.history.probability_series(names)
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -141,16 +114,17 @@ def _main(args: argparse.Namespace) -> int:
     print(f"replay: {args.tlog}: {len(log.stream)} samples", file=sys.stderr)
     result = replay(log, pipeline, progress=True)
     name = log.scenario or Path(args.tlog).stem
-    summary = summary_of(result, name)
-    summary["tlog"] = str(args.tlog)
-    summary["variant"] = options.variant
-    if not log.truth:
-        summary["note"] = "no truth in the log: estimation errors unavailable"
+    summary = dataclasses.replace(
+        summary_of(result, name),
+        tlog=str(args.tlog),
+        variant=options.variant,
+        note=None if log.truth else "no truth in the log: estimation errors unavailable",
+    )
     print(human_summary(summary), file=sys.stderr)
     if args.plot:
         t, probs = probability_series(result)
-        plot_summary(args.plot, summary, t, probs, log.truth, result.track())
+        plot_summary(args.plot, summary, t, probs, log.truth, result.history.track())
         print(f"replay: plot {args.plot}", file=sys.stderr)
     if args.json:
-        print(json.dumps(summary))
+        print(json.dumps(summary.to_json()))
     return 0

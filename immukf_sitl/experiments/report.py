@@ -19,8 +19,9 @@ Definitions (README "Reading a summary"):
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -31,16 +32,9 @@ from immukf_sitl.models.earth import NedOrigin, geodetic_to_ned
 from immukf_sitl.models.sensors import ImuSpec
 from immukf_sitl.samples import TruthSample
 from immukf_sitl.scenario import ExpectSpec, FaultSpec
-
-
-@dataclass(frozen=True)
-class EventRecord:
-    """A detection or clearing as reported by the estimator."""
-
-    kind: str
-    mode: str
-    t_s: float
-    probability: float
+from immukf_sitl.service.detection import DetectionEvent
+from immukf_sitl.service.pipeline import EstimateOutput
+from immukf_sitl.service.timing import TimingStats
 
 
 @dataclass(frozen=True)
@@ -51,6 +45,129 @@ class EstimateTrack:
     euler_rad: np.ndarray
     position_t_s: np.ndarray
     lat_lon_alt: np.ndarray
+
+
+@dataclass(frozen=True)
+class EstimateHistory:
+    """The pipeline's outputs of one flight (a replay or an in-process run), step by step."""
+
+    outputs: tuple[EstimateOutput, ...]
+
+    def events(self) -> list[DetectionEvent]:
+        """Detections and clearings in time order."""
+        return [e for out in self.outputs for e in out.events]
+
+    def track(self) -> EstimateTrack:
+        """The estimate over time (every step)."""
+        t = np.array([o.t_s for o in self.outputs])
+        return EstimateTrack(
+            t,
+            np.array([o.nav.euler_rad for o in self.outputs]).reshape(-1, 3),
+            t,
+            np.array([(o.lat_deg, o.lon_deg, o.alt_m) for o in self.outputs]).reshape(-1, 3),
+        )
+
+    def step_us(self) -> TimingStats:
+        """Wall time of the filter steps."""
+        return TimingStats.of(o.step_us for o in self.outputs)
+
+    def probability_series(self, names: Sequence[str]) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        """Mode probabilities over time, keyed by ``names`` (one per mode, in mode order)."""
+        if not self.outputs:
+            return np.zeros(0), {}
+        t = np.array([o.t_s for o in self.outputs])
+        probs = np.array([o.mode_probabilities for o in self.outputs])
+        return t, {name: probs[:, j] for j, name in enumerate(names)}
+
+
+@dataclass(frozen=True)
+class FaultOutcome:
+    """What became of one injected fault (a row of the summary's ``faults``)."""
+
+    channels: tuple[str, ...]
+    kind: str
+    t_s: float
+    mode: str
+    observable_t_s: float | None
+    detected_t_s: float | None
+    detection_delay_s: float | None
+
+    def to_json(self) -> dict[str, object]:
+        """The JSON row (keys as documented in README)."""
+        return {
+            "channels": list(self.channels),
+            "kind": self.kind,
+            "t_s": self.t_s,
+            "mode": self.mode,
+            "observable_t_s": self.observable_t_s,
+            "detected_t_s": self.detected_t_s,
+            "detection_delay_s": self.detection_delay_s,
+        }
+
+
+@dataclass(frozen=True)
+class Summary:
+    """The summary of one flight, built by :func:`summarize` only; ``to_json`` is the contract.
+
+    The fields after ``expectation`` are what the command that flew or replayed the flight adds
+    (``dataclasses.replace`` on the summarised record); ``None`` ones are left out of the JSON.
+    """
+
+    scenario: str
+    faults: tuple[FaultOutcome, ...]
+    detections: tuple[DetectionEvent, ...]
+    clearings: tuple[DetectionEvent, ...]
+    false_alarms: tuple[DetectionEvent, ...]
+    est_error: dict[str, float | None]
+    step_us: TimingStats
+    expectation: dict | None = None
+    variant: str | None = None
+    lag_us: TimingStats | None = None
+    wall_s: float | None = None
+    sim_time_s: float | None = None
+    received_truth_messages: int | None = None
+    stream: dict | None = None
+    files: dict[str, str] | None = None
+    tlog: str | None = None
+    note: str | None = None
+    extra: dict = field(default_factory=dict)
+
+    def to_json(self) -> dict[str, object]:
+        """The JSON object ``run --json`` and ``replay --json`` print (README lists the keys)."""
+        out: dict[str, object] = {
+            "scenario": self.scenario,
+            "faults": [f.to_json() for f in self.faults],
+            "detections": [
+                {"mode": e.mode.name, "t_s": _ms(e.t_s), "probability": e.probability}
+                for e in self.detections
+            ],
+            "clearings": [
+                {"mode": e.mode.name, "t_s": e.t_s, "probability": e.probability}
+                for e in self.clearings
+            ],
+            "false_alarms": len(self.false_alarms),
+            "false_alarm_detections": [
+                {"mode": e.mode.name, "t_s": e.t_s} for e in self.false_alarms
+            ],
+            "est_error": dict(self.est_error),
+            "step_us": {"median": self.step_us.median, "p99": self.step_us.p99},
+        }
+        if self.expectation is not None:
+            out["expectation"] = self.expectation
+        optional = {
+            "variant": self.variant,
+            "lag_us": None if self.lag_us is None else self.lag_us.to_json(),
+            "wall_s": None if self.wall_s is None else round(self.wall_s, 2),
+            "sim_time_s": self.sim_time_s,
+            "received_truth_messages": self.received_truth_messages,
+            "stream": self.stream,
+            "files": self.files,
+            "tlog": self.tlog,
+            "note": self.note,
+        }
+        out.update({k: v for k, v in optional.items() if v is not None})
+        out.update(self.extra)
+        return out
 
 
 def _ms(t_s: float | None) -> float | None:
@@ -107,14 +224,14 @@ def summarize(
     scenario_name: str,
     faults: Sequence[FaultSpec],
     truth: Sequence[TruthSample],
-    events: Sequence[EventRecord],
+    events: Sequence[DetectionEvent],
     track: EstimateTrack,
-    step_us: dict,
+    step_us: TimingStats,
     imu_noise: ImuSpec | None = None,
     expect: ExpectSpec | None = None,
     settle_s: float = 0.0,
-) -> dict:
-    """The JSON-ready summary of one flight (see the module docstring).
+) -> Summary:
+    """The summary of one flight (see the module docstring).
 
     Estimation errors count from ``settle_s`` after the first estimate (the alignment
     transient is not what the errors are meant to show).
@@ -124,101 +241,90 @@ def summarize(
     true_imu = np.array(
         [np.concatenate([s.specific_force_mps2, s.rates_radps]) for s in truth]
     ).reshape(-1, 6)
-    detections = [e for e in events if e.kind == "detected"]
+    detections = tuple(e for e in events if e.kind == "detected")
     first_estimate_s = float(track.attitude_t_s[0]) if track.attitude_t_s.size else 0.0
-    errors_from_s = first_estimate_s + settle_s
-    fault_rows = []
+    outcomes = []
     for fault in faults:
         observable = fault_observable_time_s(fault, t_truth, true_imu, imu_noise)
-        mode = fault.mode.name
+        mode = fault.mode
         start = max(fault.t_s, observable) if observable is not None else None
         first = next((e for e in detections if e.mode == mode and e.t_s >= fault.t_s - 1e-9), None)
         delay = None if first is None or start is None else first.t_s - start
-        fault_rows.append(
-            {
-                "channels": list(fault.channels),
-                "kind": fault.kind,
-                "t_s": fault.t_s,
-                "mode": mode,
-                "observable_t_s": _ms(observable),
-                "detected_t_s": None if first is None else _ms(first.t_s),
-                "detection_delay_s": _ms(delay),
-            }
+        outcomes.append(
+            FaultOutcome(
+                channels=tuple(fault.channels),
+                kind=fault.kind,
+                t_s=fault.t_s,
+                mode=mode.name,
+                observable_t_s=_ms(observable),
+                detected_t_s=None if first is None else _ms(first.t_s),
+                detection_delay_s=_ms(delay),
+            )
         )
-    false_alarms = [e for e in detections if e.mode != _active_mode(faults, e.t_s).name]
-    summary = {
-        "scenario": scenario_name,
-        "faults": fault_rows,
-        "detections": [
-            {"mode": e.mode, "t_s": _ms(e.t_s), "probability": e.probability} for e in detections
-        ],
-        "clearings": [
-            {"mode": e.mode, "t_s": e.t_s, "probability": e.probability}
-            for e in events
-            if e.kind == "cleared"
-        ],
-        "false_alarms": len(false_alarms),
-        "false_alarm_detections": [{"mode": e.mode, "t_s": e.t_s} for e in false_alarms],
-        "est_error": estimation_errors(truth, track, errors_from_s),
-        "step_us": {"median": step_us.get("median"), "p99": step_us.get("p99")},
-    }
-    if expect is not None:
-        summary["expectation"] = check_expectation(summary, expect)
-    return summary
+    summary = Summary(
+        scenario=scenario_name,
+        faults=tuple(outcomes),
+        detections=detections,
+        clearings=tuple(e for e in events if e.kind == "cleared"),
+        false_alarms=tuple(e for e in detections if e.mode != _active_mode(faults, e.t_s)),
+        est_error=estimation_errors(truth, track, first_estimate_s + settle_s),
+        step_us=step_us,
+    )
+    if expect is None:
+        return summary
+    return dataclasses.replace(summary, expectation=check_expectation(summary, expect))
 
 
-def check_expectation(summary: dict, expect: ExpectSpec) -> dict:
+def check_expectation(summary: Summary, expect: ExpectSpec) -> dict:
     """Whether a summary meets the scenario's ``expect`` block."""
     if expect.detect == "none":
-        met = summary["false_alarms"] == 0 and not summary["detections"]
+        met = not summary.false_alarms and not summary.detections
         return {"detect": "none", "met": met}
-    rows = [r for r in summary["faults"] if r["mode"] == FaultMode.from_name(expect.detect).name]
+    name = FaultMode.from_name(expect.detect).name
+    rows = [r for r in summary.faults if r.mode == name]
     ok = bool(rows) and all(
-        r["detection_delay_s"] is not None and r["detection_delay_s"] <= expect.within_s
-        for r in rows
+        r.detection_delay_s is not None and r.detection_delay_s <= expect.within_s for r in rows
     )
     return {
         "detect": expect.detect,
         "within_s": expect.within_s,
-        "met": ok and summary["false_alarms"] == 0,
+        "met": ok and not summary.false_alarms,
     }
 
 
-def human_summary(summary: dict) -> str:
+def human_summary(summary: Summary) -> str:
     """A few lines for people."""
-    lines = [f"scenario {summary['scenario']}"]
-    for row in summary["faults"]:
-        obs = row["observable_t_s"]
-        det = row["detected_t_s"]
-        delay = row["detection_delay_s"]
+    lines = [f"scenario {summary.scenario}"]
+    for row in summary.faults:
+        obs, det, delay = row.observable_t_s, row.detected_t_s, row.detection_delay_s
         lines.append(
-            f"  fault {row['kind']} {'+'.join(row['channels'])} at {row['t_s']:.2f} s, "
+            f"  fault {row.kind} {'+'.join(row.channels)} at {row.t_s:.2f} s, "
             f"observable {'never' if obs is None else f'{obs:.2f} s'}, "
             f"detected {'never' if det is None else f'{det:.2f} s'}"
             + ("" if delay is None else f" (delay {delay:.2f} s)")
         )
-    if not summary["faults"]:
+    if not summary.faults:
         lines.append("  no fault injected")
-    found = ", ".join(f"{d['mode']}@{d['t_s']:.2f}s" for d in summary["detections"])
-    lines.append(f"  detections: {found or 'none'}; false alarms: {summary['false_alarms']}")
-    err = summary["est_error"]
+    found = ", ".join(f"{d.mode.name}@{d.t_s:.2f}s" for d in summary.detections)
+    lines.append(f"  detections: {found or 'none'}; false alarms: {len(summary.false_alarms)}")
+    err = summary.est_error
     if err["pos_max_m"] is not None:
         lines.append(
             f"  estimate error: position max {err['pos_max_m']:.2f} m "
             f"(MSE {err['pos_mse_m2']:.2f} m^2), attitude max {err['att_max_deg']:.2f} deg "
             f"(MSE {err['att_mse_deg2']:.3f} deg^2)"
         )
-    st = summary["step_us"]
-    if st["median"] is not None:
-        lines.append(f"  filter step: median {st['median']:.0f} us, p99 {st['p99']:.0f} us")
-    if "expectation" in summary:
-        lines.append(f"  expectation {'MET' if summary['expectation']['met'] else 'NOT MET'}")
+    st = summary.step_us
+    if st.median is not None:
+        lines.append(f"  filter step: median {st.median:.0f} us, p99 {st.p99:.0f} us")
+    if summary.expectation is not None:
+        lines.append(f"  expectation {'MET' if summary.expectation['met'] else 'NOT MET'}")
     return "\n".join(lines)
 
 
 def plot_summary(
     path: str,
-    summary: dict,
+    summary: Summary,
     probability_t_s: np.ndarray,
     probabilities: dict[str, np.ndarray],
     truth: Sequence[TruthSample],
@@ -236,7 +342,7 @@ def plot_summary(
     ax_p.set_ylabel("mode probability")
     ax_p.set_ylim(-0.02, 1.02)
     ax_p.legend(loc="center left", fontsize=8, ncol=1, bbox_to_anchor=(1.0, 0.5))
-    ax_p.set_title(f"{summary['scenario']}: IMM-UKF mode probabilities and attitude error")
+    ax_p.set_title(f"{summary.scenario}: IMM-UKF mode probabilities and attitude error")
     t_truth = np.array([s.t_s for s in truth])
     idx = _match_times(track.attitude_t_s, t_truth)
     ok = idx >= 0
@@ -248,21 +354,21 @@ def plot_summary(
     ax_e.set_ylabel("attitude error (deg)")
     ax_e.set_xlabel("time (s)")
     ax_e.legend(loc="center left", fontsize=8, bbox_to_anchor=(1.0, 0.5))
-    for row in summary["faults"]:
+    for row in summary.faults:
         for ax in (ax_p, ax_e):
-            ax.axvline(row["t_s"], color="red", ls="--", lw=1)
-            if row["observable_t_s"] is not None:
-                ax.axvline(row["observable_t_s"], color="orange", ls=":", lw=1)
-    for det in summary["detections"]:
+            ax.axvline(row.t_s, color="red", ls="--", lw=1)
+            if row.observable_t_s is not None:
+                ax.axvline(row.observable_t_s, color="orange", ls=":", lw=1)
+    for det in summary.detections:
         ax_p.annotate(
-            f"{det['mode']} detected",
-            (det["t_s"], 1.0),
+            f"{det.mode.name} detected",
+            (det.t_s, 1.0),
             xytext=(5, -12),
             textcoords="offset points",
             fontsize=8,
             color="black",
         )
-        ax_p.axvline(det["t_s"], color="black", lw=0.8)
+        ax_p.axvline(det.t_s, color="black", lw=0.8)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

@@ -15,6 +15,7 @@ output like a ground station to show progress, and when the flight ends writes i
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import signal
 import sys
@@ -26,7 +27,7 @@ from immukf_sitl.errors import UserError
 from immukf_sitl.experiments.processes import Child, free_udp_ports, spawn_cli
 from immukf_sitl.experiments.report import (
     EstimateTrack,
-    EventRecord,
+    Summary,
     human_summary,
     plot_summary,
     summarize,
@@ -35,6 +36,8 @@ from immukf_sitl.mavlink.flightlog import merge_flight_log, read_estimator_log, 
 from immukf_sitl.mavlink.listener import GroundStationListener
 from immukf_sitl.options import RunOptions
 from immukf_sitl.scenario import Scenario, load_scenario
+from immukf_sitl.service.detection import DetectionEvent
+from immukf_sitl.service.timing import TimingStats
 
 #: How long serve (which compiles its kernels first) and proxy may take to bind their ports.
 READY_TIMEOUT_S = 120.0
@@ -148,7 +151,7 @@ def fly_chain(scenario: Scenario, options: RunOptions, files: RunFiles) -> Chain
     )
 
 
-def run_scenario(scenario: Scenario, options: RunOptions, out_dir: Path) -> dict:
+def run_scenario(scenario: Scenario, options: RunOptions, out_dir: Path) -> Summary:
     """Fly the chain, merge the logs and summarise (see the module docstring)."""
     out_dir.mkdir(parents=True, exist_ok=True)
     files = RunFiles(out_dir)
@@ -160,10 +163,7 @@ def run_scenario(scenario: Scenario, options: RunOptions, out_dir: Path) -> dict
     flight = read_flight_log(files.flight_tlog)
     est = read_estimator_log(files.estimator_tlog)
     serve_stats = chain.serve
-    events = [
-        EventRecord(e["kind"], e["mode"], e["t_s"], e["probability"])
-        for e in serve_stats.get("events", [])
-    ]
+    events = [DetectionEvent.from_json(e) for e in serve_stats.get("events", [])]
     track = EstimateTrack(est.attitude_t_s, est.euler_rad, est.position_t_s, est.lat_lon_alt)
     summary = summarize(
         scenario.name,
@@ -171,33 +171,34 @@ def run_scenario(scenario: Scenario, options: RunOptions, out_dir: Path) -> dict
         flight.truth,
         events,
         track,
-        serve_stats.get("step_us", {}),
+        TimingStats.from_json(serve_stats.get("step_us")),
         scenario.sensors.imu,
         scenario.expect,
         settle_s=options.filter.detector.settle_s,
     )
-    summary["lag_us"] = serve_stats.get("lag_us")
-    summary["variant"] = options.filter.variant
-    summary["wall_s"] = round(chain.wall_s, 2)
-    summary["sim_time_s"] = options.duration_s or scenario.duration_s
-    summary["received_truth_messages"] = serve_stats.get("received", {}).get(
-        "HIL_STATE_QUATERNION", 0
+    summary = dataclasses.replace(
+        summary,
+        variant=options.filter.variant,
+        lag_us=TimingStats.from_json(serve_stats.get("lag_us")),
+        wall_s=chain.wall_s,
+        sim_time_s=options.duration_s or scenario.duration_s,
+        received_truth_messages=serve_stats.get("received", {}).get("HIL_STATE_QUATERNION", 0),
+        stream={
+            "sim": chain.sim.get("sent"),
+            "proxy": {k: v for k, v in chain.proxy.items() if k != "sent"},
+            "estimator": serve_stats.get("counters"),
+            "bad_packets": serve_stats.get("bad_packets"),
+        },
+        files={
+            "flight_tlog": str(files.flight_tlog),
+            "estimator_tlog": str(files.estimator_tlog),
+            "plot": str(files.plot),
+        },
     )
-    summary["stream"] = {
-        "sim": chain.sim.get("sent"),
-        "proxy": {k: v for k, v in chain.proxy.items() if k != "sent"},
-        "estimator": serve_stats.get("counters"),
-        "bad_packets": serve_stats.get("bad_packets"),
-    }
     plot_summary(
         str(files.plot), summary, est.probability_t_s, est.probabilities, flight.truth, track
     )
-    summary["files"] = {
-        "flight_tlog": str(files.flight_tlog),
-        "estimator_tlog": str(files.estimator_tlog),
-        "plot": str(files.plot),
-    }
-    (out_dir / "summary.json").write_text(json.dumps(summary, indent=2))
+    (out_dir / "summary.json").write_text(json.dumps(summary.to_json(), indent=2))
     return summary
 
 
@@ -255,5 +256,5 @@ def _main(args: argparse.Namespace) -> int:
     print(human_summary(summary), file=sys.stderr)
     print(f"run: wrote {out_dir}/ (flight.tlog, estimator.tlog, summary.png)", file=sys.stderr)
     if args.json:
-        print(json.dumps(summary))
+        print(json.dumps(summary.to_json()))
     return 0

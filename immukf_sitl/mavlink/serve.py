@@ -25,8 +25,6 @@ from collections import Counter, deque
 from dataclasses import dataclass, field
 from typing import TextIO
 
-import numpy as np
-
 from immukf_sitl.errors import UserError
 from immukf_sitl.mavlink import codec
 from immukf_sitl.mavlink.publish import OutputRates, Publisher, heartbeat
@@ -46,8 +44,8 @@ from immukf_sitl.options import (
     add_link_arguments,
     add_tlog_argument,
 )
-from immukf_sitl.service.detection import DetectionEvent
 from immukf_sitl.service.pipeline import EstimateOutput, EstimatorPipeline
+from immukf_sitl.service.timing import TimingStats
 
 HELP = """\
 Run the IMM-UKF estimator on a MAVLink stream and publish its results.
@@ -84,18 +82,10 @@ class ServiceStats:
 
     def timing(self) -> dict:
         """Mean, median and p99 of step time and lag (us) over the recent window."""
-
-        def summary(values: deque) -> dict:
-            if not values:
-                return {"mean": None, "median": None, "p99": None}
-            arr = np.fromiter(values, float)
-            return {
-                "mean": float(arr.mean()),
-                "median": float(np.median(arr)),
-                "p99": float(np.percentile(arr, 99)),
-            }
-
-        return {"step_us": summary(self.step_us), "lag_us": summary(self.lag_us)}
+        return {
+            "step_us": TimingStats.of(self.step_us).to_json(),
+            "lag_us": TimingStats.of(self.lag_us).to_json(),
+        }
 
 
 class EstimatorService:
@@ -295,20 +285,11 @@ class EstimatorService:
             "pack_errors": self.stats.pack_errors,
             **self.stats.timing(),
             "filter_diagnostics": est.imm.diagnostics.as_dict() if est is not None else None,
-            "events": [_event_dict(e) for e in self.stats.events],
+            "events": [e.to_json() for e in self.stats.events],
         }
 
     def _say(self, text: str) -> None:
         print(text, file=self.log, flush=True)
-
-
-def _event_dict(event: DetectionEvent) -> dict:
-    return {
-        "kind": event.kind,
-        "mode": event.mode.name,
-        "t_s": round(event.t_s, 4),
-        "probability": event.probability,
-    }
 
 
 # -- command line ----------------------------------------------------------------------------

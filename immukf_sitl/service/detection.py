@@ -46,6 +46,22 @@ class DetectionEvent:
     t_s: float
     probability: float
 
+    def to_json(self) -> dict[str, object]:
+        """``{"kind", "mode", "t_s", "probability"}`` (mode by name, time to 0.1 ms)."""
+        return {
+            "kind": self.kind,
+            "mode": self.mode.name,
+            "t_s": round(self.t_s, 4),
+            "probability": self.probability,
+        }
+
+    @classmethod
+    def from_json(cls, data: dict) -> DetectionEvent:
+        """Back from :meth:`to_json`."""
+        return cls(
+            data["kind"], FaultMode.from_name(data["mode"]), data["t_s"], data["probability"]
+        )
+
     def text(self) -> str:
         """STATUSTEXT wording, at most 50 characters."""
         verb = "detected" if self.kind == "detected" else "cleared"
