@@ -16,7 +16,6 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from immukf_sitl.estimation import (
     FaultMode,
@@ -36,55 +35,12 @@ from immukf_sitl.models.earth import NedOrigin
 from immukf_sitl.models.ins import InsModel
 from immukf_sitl.models.params import AircraftParams
 from immukf_sitl.models.sensors import IMU_PERIOD_S, SensorSpec
+from immukf_sitl.service.alignment import NavSolution, body_to_ned
+from immukf_sitl.service.tuning import FilterTuning
 
 Variant = Literal["ukf1", "ukf2", "ukf3", "imm"]
 VARIANTS: tuple[str, ...] = ("ukf1", "ukf2", "ukf3", "imm")
 GPS_COURSE_CHANNEL = 4
-
-
-@dataclass(frozen=True)
-class FilterTuning:
-    """Process noise of the aerodynamic model and the IMM's Markov chain (eq. 3).
-
-    ``process_noise_factor`` scales the IMU noise into the model's process noise ``v``: the
-    paper (section 3) uses two orders of magnitude; this project's model reproduces the JSBSim
-    aircraft far better than that (``immukf-sitl validate-model``), and an over-wide ``Q``
-    makes the fault-free filter's predictions of near-zero channels (p, q, r, y in steady
-    flight) more uncertain than a zeroed channel's, which hands the fault modes a likelihood
-    edge every step. Ten times the IMU noise is the measured compromise (see README).
-
-    The chain is asymmetric on purpose. ``onset_probability`` is the chance per step that the
-    fault-free system develops a given fault; ``recovery_probability`` the chance per step that
-    a faulty mode hands back to fault-free. Whatever edge an unobservable fault mode keeps, a
-    recovery probability above it bounds its posterior odds near ``onset / recovery``, while a
-    fault that shows (a true value a few sigma from zero) wins within a few steps. Measured on
-    the default flight (seed 3, 30 s of fault-free flight after settling): recovery 0.05 let
-    the p mode reach 0.95 on the straight first leg, 0.15 kept every fault mode below 0.26,
-    0.25 below 0.07, while zeroed x, y, z, p, q, r gyros were still declared within 0.13 s of
-    becoming observable.
-    """
-
-    process_noise_factor: float = 10.0
-    onset_probability: float = 1e-4
-    recovery_probability: float = 0.25
-    probability_floor: float = 1e-6
-
-    def transition(self, modes: Sequence[FaultMode]) -> np.ndarray:
-        """``T[i, j] = P(M(k+1)=j | M(k)=i)`` (eq. 3) over ``modes`` (fault-free first)."""
-        r = len(modes)
-        if r == 1:
-            return np.ones((1, 1))
-        eps, delta = self.onset_probability, self.recovery_probability
-        if not (0 < eps * (r - 1) < 1 and 0 < delta + eps * (r - 2) < 1):
-            raise ValueError("onset/recovery probabilities leave no mass to stay in a mode")
-        matrix = np.full((r, r), eps)
-        healthy = [j for j, m in enumerate(modes) if m.bits == 0]
-        for i, mode in enumerate(modes):
-            if mode.bits != 0 and healthy:
-                matrix[i, healthy[0]] = delta
-            matrix[i, i] = 0.0
-            matrix[i, i] = 1.0 - matrix[i].sum()
-        return matrix
 
 
 def aero_process_model(
@@ -144,65 +100,6 @@ def aero_measurement_models(
         name="imu+gps",
     )
     return imu_only, with_gps
-
-
-@dataclass(frozen=True)
-class NavSolution:
-    """A navigation state every variant can start from and report (NED about the origin).
-
-    Attributes
-    ----------
-    t_s : float
-    position_ned_m, velocity_ned_mps : ndarray, shape (3,)
-    euler_rad : ndarray, shape (3,)
-        Roll, pitch, yaw (ZYX).
-    rates_radps : ndarray, shape (3,)
-        Body rates p, q, r.
-    position_sigma_m, velocity_sigma_mps, euler_sigma_rad, rates_sigma_radps : ndarray
-        One-sigma uncertainties of the same (diagonal of the covariance).
-    """
-
-    t_s: float
-    position_ned_m: np.ndarray
-    velocity_ned_mps: np.ndarray
-    euler_rad: np.ndarray
-    rates_radps: np.ndarray
-    position_sigma_m: np.ndarray
-    velocity_sigma_mps: np.ndarray
-    euler_sigma_rad: np.ndarray
-    rates_sigma_radps: np.ndarray
-
-
-def body_to_ned(euler_rad: np.ndarray) -> np.ndarray:
-    """``R_nb`` for ZYX Euler angles (docs/conventions.md), via scipy."""
-    return Rotation.from_euler("ZYX", np.asarray(euler_rad)[::-1]).as_matrix()
-
-
-def align(t_s: float, imu: np.ndarray, gps: np.ndarray) -> NavSolution:
-    """A coarse in-flight alignment from one IMU sample and one GPS fix.
-
-    Roll and pitch from the specific force of unaccelerated flight (``f = -R_bn g``:
-    ``theta = asin(f_x / |f|)``, ``phi = atan2(-f_y, -f_z)``), yaw from the GPS course (no wind,
-    small sideslip), NED velocity from ground speed and course (vertical unknown: 0), rates from
-    the gyros. The sigmas say how rough that is.
-    """
-    f = imu[:3]
-    g = float(np.linalg.norm(f))
-    theta = float(np.arcsin(np.clip(f[0] / g, -1.0, 1.0)))
-    phi = float(np.arctan2(-f[1], -f[2]))
-    course = float(gps[4])
-    speed = float(gps[3])
-    return NavSolution(
-        t_s,
-        np.array(gps[:3], dtype=float),
-        np.array([speed * np.cos(course), speed * np.sin(course), 0.0]),
-        np.array([phi, theta, course]),
-        np.array(imu[3:6], dtype=float),
-        np.array([1.0, 1.0, 1.5]),
-        np.array([1.0, 1.0, 1.0]),
-        np.radians([3.0, 3.0, 5.0]),
-        np.full(3, 0.003),  # straight from the gyros
-    )
 
 
 def _sigma(cov: np.ndarray, idx: slice) -> np.ndarray:
