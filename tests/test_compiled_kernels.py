@@ -257,18 +257,18 @@ def _run_update(kern, weights, pred_mean, pred_cov, x_res, z_points, z, add_r, a
         new_mean=np.empty((batch, nx)), new_cov=np.empty((batch, nx, nx)), nis=np.empty(batch),
         log_lik=np.empty(batch),
     )  # fmt: skip
-    ok = kern.update(
+    status = kern.update(
         pred_mean, pred_cov, x_res, z_points, weights.mean_weights, weights.cov_weights,
         angle_mask(nz, angles[0]), angle_mask(nx, angles[1]), z, add_r, *out.values(),
     )  # fmt: skip
-    return ok, out
+    return status, out
 
 
 def test_update_is_the_kalman_update_with_an_explicit_gain(kern):
     case = _update_case(np.random.default_rng(10))
     angles = ((1,), (2,))
-    ok, out = _run_update(kern, *case, angles)
-    assert ok
+    status, out = _run_update(kern, *case, angles)
+    assert status == 0  # factored, and every result finite
     weights, pred_mean, pred_cov, x_res, z_points, z, add_r = case
     ref = np_kalman_update(pred_mean, pred_cov, x_res, z_points, weights, z, add_r, *angles)
     for name, expected in ref.items():
@@ -277,12 +277,27 @@ def test_update_is_the_kalman_update_with_an_explicit_gain(kern):
     assert np.array_equal(out["new_cov"], out["new_cov"].transpose(0, 2, 1))
     # and from LAPACK's factors, gain_update (the path after a repair) gives the same update
     again = {name: np.empty_like(out[name]) for name in ("new_mean", "new_cov", "nis", "log_lik")}
-    kern.gain_update(
+    n_nonfinite = kern.gain_update(
         pred_mean, pred_cov, out["cross"], out["innovation"], np.linalg.cholesky(out["z_cov"]),
         angle_mask(pred_mean.shape[1], (2,)), *again.values(),
     )  # fmt: skip
+    assert n_nonfinite == 0
     for name, values in again.items():
         assert_close(values, out[name], 1e-12)
+
+
+def test_update_counts_the_filters_whose_update_is_not_finite(kern):
+    weights, pred_mean, pred_cov, x_res, z_points, z, add_r = _update_case(
+        np.random.default_rng(14)
+    )
+    pred_mean[1, 0] = np.nan
+    pred_cov[3, 4, 4] = np.inf
+    status, out = _run_update(
+        kern, weights, pred_mean, pred_cov, x_res, z_points, z, add_r, ((), ())
+    )
+    assert status == 2
+    finite = np.isfinite(out["new_mean"]).all(axis=1) & np.isfinite(out["new_cov"]).all(axis=(1, 2))
+    assert list(finite) == [True, False, True, False, True]
 
 
 def test_update_reports_an_innovation_covariance_it_cannot_factor(kern):
@@ -291,8 +306,10 @@ def test_update_reports_an_innovation_covariance_it_cannot_factor(kern):
     )
     z_points[3] = 0.0  # an output that ignores the state...
     add_r[3, 3] = 0.0  # ...and has no noise: P_zz singular
-    ok, out = _run_update(kern, weights, pred_mean, pred_cov, x_res, z_points, z, add_r, ((), ()))
-    assert not ok
+    status, out = _run_update(
+        kern, weights, pred_mean, pred_cov, x_res, z_points, z, add_r, ((), ())
+    )
+    assert status == -1
     assert np.all(out["z_cov"][:, 3, :] == 0.0)
 
 

@@ -348,7 +348,7 @@ def _gain_update(
     (eq. 24), so ``x = x^- + W' e`` (eq. 22) and ``P = P^- - W' W`` (eq. 23 with the Kalman
     sign; the paper prints ``+ K P_zz K'``). ``NIS = e' e``; eq. (25) in log space,
     ``log Lambda = -(NIS + log det P_zz + nz log 2 pi) / 2`` (its printed exponent lacks the
-    minus sign).
+    minus sign). Returns whether the new mean and covariance are finite.
     """
     nz = innovation.shape[1]
     nx = pred_mean.shape[1]
@@ -387,11 +387,15 @@ def _gain_update(
             wa = white[i, a]
             for c in range(nx):
                 outer[a, c] += wa * white[i, c]
+    finite = True
     for a in range(nx):
+        finite = finite and math.isfinite(new_mean[b, a])
         for c in range(a + 1):
             value = pred_cov[b, a, c] - outer[a, c]
             new_cov[b, a, c] = value
             new_cov[b, c, a] = value
+            finite = finite and math.isfinite(value)
+    return finite
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -404,9 +408,10 @@ def update(
     ``z_cov`` (B, nz, nz) gets ``P_zz + add_r`` (eq. 20; ``add_r`` is ``R`` in the additive
     form, zeros in the augmented one), ``cross`` (B, nz, nx) ``P_zx`` (eq. 19), ``innovation``
     (B, nz) ``z - z^`` (eq. 21, angles wrapped), ``z_chol`` the factors of ``P_zz``; then
-    :func:`gain_update`'s outputs. Returns False when a factor failed the pivot guard: the
-    caller then factors ``z_cov`` itself and calls :func:`gain_update` (the outputs after
-    ``z_chol`` are incomplete).
+    :func:`gain_update`'s outputs. Returns the number of filters whose new mean or covariance
+    is not finite, or -1 when a factor failed the pivot guard: the caller then factors
+    ``z_cov`` itself and calls :func:`gain_update` (the outputs after ``z_chol`` are
+    incomplete).
     """
     nz, batch, n_sigma = z_points.shape
     nx = pred_mean.shape[1]
@@ -420,39 +425,45 @@ def update(
     white = np.empty((nz, nx))
     white_innov = np.empty(nz)
     outer = np.empty((nx, nx))
-    ok = True
+    n_nonfinite = 0
+    factored = True
     for b in range(batch):
         _output_moments(
             b, z_points, src, wm, wc, z_angle, add_r, x_res, z, zr, zm, xw, sines, cosines, acc,
             z_cov, cross, innovation,
         )  # fmt: skip
-        if _cholesky_into(z_cov[b], z_chol[b]):
-            _gain_update(
-                b, pred_mean, pred_cov, cross, innovation, z_chol, x_angle, white, white_innov,
-                outer, new_mean, new_cov, nis, log_lik,
-            )  # fmt: skip
-        else:
-            ok = False
-    return ok
+        if not _cholesky_into(z_cov[b], z_chol[b]):
+            factored = False
+        elif not _gain_update(
+            b, pred_mean, pred_cov, cross, innovation, z_chol, x_angle, white, white_innov,
+            outer, new_mean, new_cov, nis, log_lik,
+        ):  # fmt: skip
+            n_nonfinite += 1
+    return n_nonfinite if factored else -1
 
 
 @numba.njit(cache=True, error_model="numpy")
 def gain_update(
     pred_mean, pred_cov, cross, innovation, z_chol, x_angle, new_mean, new_cov, nis, log_lik
 ):
-    """Eqs. (22)-(25) of every filter from given factors ``z_chol`` of ``P_zz`` (see
-    :func:`_gain_update`): ``new_mean`` (B, nx), ``new_cov`` (B, nx, nx), ``nis`` and
-    ``log_lik`` (B,)."""
+    """Eqs. (22)-(25) of every filter from given factors ``z_chol`` of ``P_zz``.
+
+    See :func:`_gain_update`: ``new_mean`` (B, nx), ``new_cov`` (B, nx, nx), ``nis`` and
+    ``log_lik`` (B,). Returns the number of filters whose new mean or covariance is not finite.
+    """
     nz = innovation.shape[1]
     nx = pred_mean.shape[1]
     white = np.empty((nz, nx))
     white_innov = np.empty(nz)
     outer = np.empty((nx, nx))
+    n_nonfinite = 0
     for b in range(pred_mean.shape[0]):
-        _gain_update(
+        if not _gain_update(
             b, pred_mean, pred_cov, cross, innovation, z_chol, x_angle, white, white_innov, outer,
             new_mean, new_cov, nis, log_lik,
-        )  # fmt: skip
+        ):  # fmt: skip
+            n_nonfinite += 1
+    return n_nonfinite
 
 
 # -- the IMM (eqs. 6-8, 26-28) -----------------------------------------------------------------

@@ -320,21 +320,21 @@ class UnscentedKalmanFilter:
         nis = np.empty(batch)
         log_likelihood = np.empty(batch)
         # eqs. (17), (19)-(25)
-        solved = kern.update(
+        n_nonfinite = kern.update(
             pred_mean, pred_cov, x_res, z_points, weights.mean_weights, weights.cov_weights,
             z_angle, self._x_angle, np.ascontiguousarray(measurement.z), added_r, z_cov, cross,
             innovation, z_chol, new_mean, new_cov, nis, log_likelihood,
         )  # fmt: skip
-        if not solved:  # a P_zz the kernel doubts: LAPACK and the repairs factor (and count)
+        if n_nonfinite < 0:  # a P_zz the kernel doubts: LAPACK and the repairs factor (and count)
             z_chol = robust_cholesky(z_cov, diag)
-            kern.gain_update(
+            n_nonfinite = kern.gain_update(
                 pred_mean, pred_cov, cross, innovation, z_chol, self._x_angle, new_mean, new_cov,
                 nis, log_likelihood,
             )  # fmt: skip
         diag.symmetrised += 2 * batch  # P_zz and P(k+1|k+1), symmetric by construction
         diag.outlier_innovations += int(np.count_nonzero(nis > outlier_nis_threshold(nz)))
 
-        if not (np.isfinite(new_mean).all() and np.isfinite(new_cov).all()):
+        if n_nonfinite:  # reset those filters to x(k|k), P(k|k); their likelihood is zero
             bad = ~(np.isfinite(new_mean).all(axis=1) & np.isfinite(new_cov).all(axis=(1, 2)))
             diag.nonfinite_state_reset += int(np.count_nonzero(bad))
             new_mean[bad] = np.where(np.isfinite(mean[bad]), mean[bad], 0.0)
