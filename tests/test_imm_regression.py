@@ -27,7 +27,7 @@ import pytest
 from immukf_sitl.experiments.bench import ORIGIN, initial_cov, make_flight
 from immukf_sitl.models.aero import AeroModel
 from immukf_sitl.models.params import load_aircraft_params
-from immukf_sitl.service.filters import build_aero_estimator
+from immukf_sitl.service.filters import Observation, build_aero_estimator
 
 FIXTURE = Path(__file__).parent / "data" / "imm_regression.npz"
 N_STEPS = 250
@@ -50,12 +50,15 @@ def run_bank(form: str, model_backend: str) -> dict[str, np.ndarray]:
     model = AeroModel(params, ORIGIN, backend=model_backend)
     est = build_aero_estimator("imm", model, noise_form=form)
     assert est.imm.ukf.backend == "numba"
-    est.initialize(0.0, data.x0, initial_cov(), data.controls[0])
+    estimate = est.start(0.0, data.x0, initial_cov(), data.controls[0])
     rows: dict[str, list[np.ndarray]] = {
         "mean": [], "cov_diag": [], "mode_probabilities": [], "log_likelihoods": [], "nis": []
     }  # fmt: skip
     for k in range(1, N_STEPS):
-        e = est.step(k * model.dt_s, data.controls[k], data.imu[k], data.gps[k])
+        estimate = est.step(
+            estimate, k * model.dt_s, data.controls[k], Observation(data.imu[k], data.gps[k])
+        )
+        e = estimate.filter
         if k % RECORD_EVERY:
             continue
         rows["mean"].append(e.mean)

@@ -284,7 +284,7 @@ class EstimatorService:
             "send_errors": self.stats.send_errors,
             "pack_errors": self.stats.pack_errors,
             **self.stats.timing(),
-            "filter_diagnostics": est.imm.diagnostics.as_dict() if est is not None else None,
+            "filter_diagnostics": est.diagnostics.as_dict() if est is not None else None,
             "events": [e.to_json() for e in self.stats.events],
         }
 

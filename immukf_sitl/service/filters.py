@@ -5,20 +5,28 @@
 - UKF-3: strapdown INS equations (IMU as input, GPS as observation), fault-free;
 - UKF-4 (``imm``): aerodynamic model, IMM over the 7 single fault modes.
 
-Every variant is driven the same way: :meth:`AircraftEstimator.step` with the controls, the six
-IMU channels and, when a fix arrived, the five GPS observables (see ``docs/conventions.md``).
+Every variant follows one protocol (:class:`Estimator`): ``initial_estimate(nav, controls, imu)``
+and then ``step(previous, t_next_s, controls, observation) -> VariantEstimate`` once per IMU
+sample, where ``controls`` are the actuator deflections acting from ``t_next_s`` and
+``observation`` holds the six IMU channels and, when a fix arrived, the five GPS observables at
+``t_next_s`` (``docs/conventions.md``). Which of them a variant treats as a measurement and which
+as an input is its own business: the aerodynamic variants measure the IMU and fly on the
+controls; the INS variant integrates the IMU and measures GPS only. Estimates are immutable
+records; the estimators hold no state but their filters' safeguard counters.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
 
 from immukf_sitl.estimation import (
     FaultMode,
+    FilterDiagnostics,
     ImmEstimate,
     ImmEstimator,
     JulierSigmaPoints,
@@ -106,12 +114,109 @@ def _sigma(cov: np.ndarray, idx: slice) -> np.ndarray:
     return np.sqrt(np.clip(np.diagonal(cov)[idx], 0.0, None))
 
 
-@dataclass
-class AircraftEstimator:
+@dataclass(frozen=True)
+class Observation:
+    """What arrived at one IMU sample time.
+
+    Attributes
+    ----------
+    imu : ndarray, shape (6,)
+        ``[f_x, f_y, f_z, p, q, r]``; non-finite across a gap (predict only).
+    gps : ndarray, shape (5,), or None
+        ``[pN, pE, pD, ground speed, course]`` when a fix is due.
+    """
+
+    imu: np.ndarray
+    gps: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class VariantEstimate:
+    """An estimate of any variant at ``t_s``: the bank's state and the inputs acting from then.
+
+    Attributes
+    ----------
+    t_s : float
+        Time of the estimate (the IMU sample it used last).
+    filter : ImmEstimate
+        The bank's (or the single filter's) estimate at ``t_s``.
+    controls : ndarray, shape (4,)
+        Deflections acting from ``t_s`` (the aerodynamic model flies the next step on them).
+    imu : ndarray, shape (6,)
+        The last finite IMU sample (the INS integrates it over the next step).
+    """
+
+    t_s: float
+    filter: ImmEstimate
+    controls: np.ndarray
+    imu: np.ndarray
+
+    @property
+    def mode_probabilities(self) -> np.ndarray:
+        """``mu_j`` (eq. 26) of the variant's modes."""
+        return self.filter.mode_probabilities
+
+
+class _Bank:
+    """What every variant shares: its modes, its IMM (one mode for UKF-1/2/3), its counters."""
+
+    variant: str
+    modes: tuple[FaultMode, ...]
+    imm: ImmEstimator
+
+    @property
+    def diagnostics(self) -> FilterDiagnostics:
+        """Safeguard counters of the variant's filters."""
+        return self.imm.diagnostics
+
+    def prior_probabilities(self) -> np.ndarray:
+        """Mode probabilities to start from: the Markov chain's stationary distribution."""
+        eigval, eigvec = np.linalg.eig(self.imm.transition.T)
+        stationary = np.real(eigvec[:, np.argmin(np.abs(eigval - 1.0))])
+        return stationary / stationary.sum()
+
+    def start(
+        self,
+        t_s: float,
+        mean: np.ndarray,
+        cov: np.ndarray,
+        controls: np.ndarray,
+        imu: np.ndarray | None = None,
+    ) -> VariantEstimate:
+        """Every mode starts from ``mean``, ``cov`` at ``t_s``; ``controls`` act from then.
+
+        ``imu`` is the sample at ``t_s`` (the INS integrates it over the first step; zeros if
+        not given).
+        """
+        bank = self.imm.initial_estimate(t_s, mean, cov, self.prior_probabilities())
+        imu = np.zeros(6) if imu is None else np.array(imu, dtype=float)
+        return VariantEstimate(t_s, bank, np.array(controls, dtype=float), imu)
+
+    def restart_from_fault_free(self, estimate: VariantEstimate) -> VariantEstimate:
+        """Re-seed every mode from the fault-free filter, at the prior mode probabilities.
+
+        The paper initialises the mode-matched filters from the fault-free UKF's steady state
+        (section 2.A); the service runs the bank through a settling period and then calls this.
+        A bank of one mode (UKF-1, UKF-2, UKF-3) has nothing to re-seed.
+        """
+        healthy = next((j for j, m in enumerate(self.modes) if m.bits == 0), None)
+        if healthy is None or len(self.modes) == 1:
+            return estimate
+        bank = estimate.filter
+        restarted = self.imm.initial_estimate(
+            bank.t_s,
+            bank.mode_means[healthy],
+            bank.mode_covs[healthy],
+            self.prior_probabilities(),
+        )
+        return dataclasses.replace(estimate, filter=restarted)
+
+
+@dataclass(frozen=True, eq=False)
+class AircraftEstimator(_Bank):
     """A bank of mode-matched UKFs over the aerodynamic model (one mode for UKF-1/UKF-2).
 
-    Use :func:`build_aero_estimator`; then :meth:`initialize` and :meth:`step` once per IMU
-    sample.
+    Build it with :func:`build_aero_estimator`.
     """
 
     variant: str
@@ -119,60 +224,53 @@ class AircraftEstimator:
     imm: ImmEstimator
     imu_model: MeasurementModel
     imu_gps_model: MeasurementModel
-    estimate: ImmEstimate | None = field(default=None)
-    _controls: np.ndarray = field(default_factory=lambda: np.zeros(4), repr=False)
 
-    def initialize(
-        self, t_s: float, mean: np.ndarray, cov: np.ndarray, controls: np.ndarray
-    ) -> ImmEstimate:
-        """Start every mode-matched filter at ``mean``, ``cov``; ``controls`` act from ``t_s``."""
-        self.estimate = self.imm.initial_estimate(t_s, mean, cov, self.prior_probabilities())
-        self._controls = np.array(controls, dtype=float)
-        return self.estimate
-
-    def restart_from_fault_free(self) -> ImmEstimate:
-        """Re-seed every mode from the fault-free filter, at the prior mode probabilities.
-
-        The paper initialises the mode-matched filters from the fault-free UKF's steady state
-        (section 2.A); the service runs the bank through a settling period and then calls this.
-        """
-        est = self._require()
-        healthy = next((j for j, m in enumerate(self.modes) if m.bits == 0), None)
-        if healthy is None or len(self.modes) == 1:  # UKF-1/UKF-2: nothing to re-seed
-            return est
-        restarted = self.imm.initial_estimate(
-            est.t_s, est.mode_means[healthy], est.mode_covs[healthy], self.prior_probabilities()
-        )
-        self.estimate = restarted
-        return restarted
-
-    def prior_probabilities(self) -> np.ndarray:
-        """Mode probabilities to start from: the Markov chain's stationary distribution."""
-        transition = self.imm.transition
-        eigval, eigvec = np.linalg.eig(transition.T)
-        stationary = np.real(eigvec[:, np.argmin(np.abs(eigval - 1.0))])
-        return stationary / stationary.sum()
-
-    def initialize_from(self, nav: NavSolution, controls: np.ndarray) -> ImmEstimate:
-        """Start from a navigation solution (e.g. :func:`align`)."""
+    def initial_estimate(
+        self, nav: NavSolution, controls: np.ndarray, imu: np.ndarray
+    ) -> VariantEstimate:
+        """Every mode starts from ``nav`` (e.g. :func:`align`); ``controls`` act from its time."""
         rot = body_to_ned(nav.euler_rad)
         mean = np.concatenate(
             [nav.position_ned_m, rot.T @ nav.velocity_ned_mps, nav.euler_rad, nav.rates_radps]
         )
-        sig = np.concatenate(
+        sigma = np.concatenate(
             [nav.position_sigma_m, nav.velocity_sigma_mps, nav.euler_sigma_rad,
              nav.rates_sigma_radps]
         )  # fmt: skip
-        return self.initialize(nav.t_s, mean, np.diag(sig**2), controls)
+        return self.start(nav.t_s, mean, np.diag(sigma**2), controls, imu)
 
-    def navigation(self) -> NavSolution:
+    def step(
+        self,
+        previous: VariantEstimate,
+        t_next_s: float,
+        controls: np.ndarray,
+        observation: Observation,
+    ) -> VariantEstimate:
+        """Fly from ``previous`` to ``t_next_s`` on its controls; update with the observation.
+
+        The output model predicts the IMU at ``t_next_s`` with ``controls`` (the specific force
+        depends on the surfaces and throttle acting at the sample): the filter's control
+        argument is the pair ``[u(k), u(k+1)]``.
+        """
+        imu, gps = observation.imu, observation.gps
+        if gps is None:
+            z = Measurement(imu, self.imu_model)
+        else:
+            z = Measurement(np.concatenate([imu, gps]), self.imu_gps_model)
+        controls = np.asarray(controls, dtype=float)
+        pair = np.stack([previous.controls, controls])
+        bank = self.imm.step(previous.filter, t_next_s, pair, z)
+        last_imu = imu if np.all(np.isfinite(imu)) else previous.imu
+        return VariantEstimate(t_next_s, bank, controls, np.array(last_imu, dtype=float))
+
+    def navigation(self, estimate: VariantEstimate) -> NavSolution:
         """The combined estimate as a navigation solution."""
-        est = self._require()
-        x, cov = est.mean, est.cov
+        bank = estimate.filter
+        x, cov = bank.mean, bank.cov
         rot = body_to_ned(x[6:9])
         vel_cov = rot @ cov[3:6, 3:6] @ rot.T
         return NavSolution(
-            est.t_s,
+            estimate.t_s,
             x[0:3].copy(),
             rot @ x[3:6],
             x[6:9].copy(),
@@ -182,39 +280,6 @@ class AircraftEstimator:
             _sigma(cov, slice(6, 9)),
             _sigma(cov, slice(9, 12)),
         )
-
-    def _require(self) -> ImmEstimate:
-        if self.estimate is None:
-            raise RuntimeError("initialize() the estimator before using it")
-        return self.estimate
-
-    def step(
-        self, t_s: float, controls: np.ndarray, imu: np.ndarray, gps: np.ndarray | None
-    ) -> ImmEstimate:
-        """Advance to the sample at ``t_s``.
-
-        Parameters
-        ----------
-        t_s : float
-            Time of the IMU sample (s).
-        controls : ndarray, shape (4,)
-            ``[delta_e, delta_a, delta_r, delta_t]`` acting from ``t_s``; the step from the
-            previous sample flies on the previous call's controls.
-        imu : ndarray, shape (6,)
-            ``[f_x, f_y, f_z, p, q, r]`` at ``t_s``.
-        gps : ndarray, shape (5,), or None
-            ``[pN, pE, pD, ground speed, course]`` when a fix is due at ``t_s``.
-        """
-        self._require()
-        if gps is None:
-            z = Measurement(imu, self.imu_model)
-        else:
-            z = Measurement(np.concatenate([imu, gps]), self.imu_gps_model)
-        controls = np.asarray(controls, dtype=float)
-        pair = np.stack([self._controls, controls])
-        self.estimate = self.imm.step(self.estimate, t_s, pair, z)
-        self._controls = controls
-        return self.estimate
 
 
 def build_aero_estimator(
@@ -253,12 +318,12 @@ def build_aero_estimator(
     return AircraftEstimator(variant, tuple(modes), imm, imu_model, imu_gps_model)
 
 
-@dataclass
-class InsEstimator:
+@dataclass(frozen=True, eq=False)
+class InsEstimator(_Bank):
     """UKF-3: strapdown INS equations with the IMU as input and GPS as the only observation.
 
-    Same interface as :class:`AircraftEstimator`; the controls are not used. Between GPS fixes
-    the step is predict-only.
+    Same protocol as :class:`AircraftEstimator`; the controls are carried but not used.
+    Between GPS fixes the step is predict-only.
     """
 
     ins: InsModel
@@ -266,52 +331,41 @@ class InsEstimator:
     gps_model: MeasurementModel
     variant: str = "ukf3"
     modes: tuple[FaultMode, ...] = (FaultMode(0),)
-    estimate: ImmEstimate | None = field(default=None)
-    _imu: np.ndarray = field(default_factory=lambda: np.zeros(6), repr=False)
 
-    def initialize(
-        self, t_s: float, mean: np.ndarray, cov: np.ndarray, imu: np.ndarray
-    ) -> ImmEstimate:
-        """Start at ``mean`` (9-state), ``cov``; ``imu`` is the sample at ``t_s``."""
-        self.estimate = self.imm.initial_estimate(t_s, mean, cov)
-        self._imu = np.array(imu, dtype=float)
-        return self.estimate
-
-    def restart_from_fault_free(self) -> ImmEstimate:
-        """Nothing to re-seed: UKF-3 is a single fault-free filter."""
-        if self.estimate is None:
-            raise RuntimeError("initialize() the estimator before using it")
-        return self.estimate
-
-    def initialize_from(self, nav: NavSolution, imu: np.ndarray) -> ImmEstimate:
-        """Start from a navigation solution (e.g. :func:`align`)."""
+    def initial_estimate(
+        self, nav: NavSolution, controls: np.ndarray, imu: np.ndarray
+    ) -> VariantEstimate:
+        """Start from ``nav`` (9 states); ``imu`` is the sample at its time."""
         mean = np.concatenate([nav.position_ned_m, nav.velocity_ned_mps, nav.euler_rad])
-        sig = np.concatenate([nav.position_sigma_m, nav.velocity_sigma_mps, nav.euler_sigma_rad])
-        return self.initialize(nav.t_s, mean, np.diag(sig**2), imu)
+        sigma = np.concatenate([nav.position_sigma_m, nav.velocity_sigma_mps, nav.euler_sigma_rad])
+        return self.start(nav.t_s, mean, np.diag(sigma**2), controls, imu)
 
     def step(
-        self, t_s: float, controls: np.ndarray, imu: np.ndarray, gps: np.ndarray | None
-    ) -> ImmEstimate:
-        """Integrate the previous IMU sample up to ``t_s``; update with ``gps`` if given."""
-        if self.estimate is None:
-            raise RuntimeError("initialize() the estimator before step()")
+        self,
+        previous: VariantEstimate,
+        t_next_s: float,
+        controls: np.ndarray,
+        observation: Observation,
+    ) -> VariantEstimate:
+        """Integrate the previous IMU sample up to ``t_next_s``; update with GPS if given."""
+        gps = observation.gps
         z = None if gps is None else Measurement(gps, self.gps_model)
-        self.estimate = self.imm.step(self.estimate, t_s, self._imu, z)
-        if np.all(np.isfinite(imu)):  # across a gap the last good sample keeps driving
-            self._imu = np.array(imu, dtype=float)
-        return self.estimate
+        bank = self.imm.step(previous.filter, t_next_s, previous.imu, z)
+        imu = observation.imu
+        last_imu = imu if np.all(np.isfinite(imu)) else previous.imu  # a gap: keep driving
+        return VariantEstimate(
+            t_next_s, bank, np.asarray(controls, dtype=float), np.array(last_imu, dtype=float)
+        )
 
-    def navigation(self) -> NavSolution:
+    def navigation(self, estimate: VariantEstimate) -> NavSolution:
         """The estimate as a navigation solution (rates: the last gyro sample)."""
-        if self.estimate is None:
-            raise RuntimeError("initialize() the estimator before using it")
-        x, cov = self.estimate.mean, self.estimate.cov
+        x, cov = estimate.filter.mean, estimate.filter.cov
         return NavSolution(
-            self.estimate.t_s,
+            estimate.t_s,
             x[0:3].copy(),
             x[3:6].copy(),
             x[6:9].copy(),
-            self._imu[3:6].copy(),
+            estimate.imu[3:6].copy(),
             _sigma(cov, slice(0, 3)),
             _sigma(cov, slice(3, 6)),
             _sigma(cov, slice(6, 9)),

@@ -33,7 +33,12 @@ from immukf_sitl.models.sensors import IMU_PERIOD_S, SensorSpec
 from immukf_sitl.samples import ActuatorSample, GpsSample, ImuSample
 from immukf_sitl.service.alignment import NavSolution, align
 from immukf_sitl.service.detection import DetectionEvent, DetectorConfig, FaultDetector
-from immukf_sitl.service.filters import Estimator, build_estimator
+from immukf_sitl.service.filters import (
+    Estimator,
+    Observation,
+    VariantEstimate,
+    build_estimator,
+)
 from immukf_sitl.service.tuning import FilterTuning
 
 
@@ -125,6 +130,7 @@ class EstimatorPipeline:
         self.counters = StreamCounters()
         self.origin: NedOrigin | None = None
         self.estimator: Estimator | None = None
+        self.estimate: VariantEstimate | None = None
         self.detector: FaultDetector | None = None
         self._controls: np.ndarray | None = None
         self._gps_queue: deque[GpsSample] = deque(maxlen=16)
@@ -149,9 +155,9 @@ class EstimatorPipeline:
         )
         imu = np.array([0.5, 0.0, -9.8, 0.0, 0.0, 0.0])
         gps = np.array([0.0, 0.0, 0.0, float(x0[3]), 0.0])
-        estimator.initialize_from(align(0.0, imu, gps), imu if cfg.variant == "ukf3" else u0)
-        estimator.step(IMU_PERIOD_S, u0, imu, gps)
-        estimator.step(2 * IMU_PERIOD_S, u0, imu, None)
+        est = estimator.initial_estimate(align(0.0, imu, gps), u0, imu)
+        est = estimator.step(est, IMU_PERIOD_S, u0, Observation(imu, gps))
+        estimator.step(est, 2 * IMU_PERIOD_S, u0, Observation(imu))
 
     @property
     def aligned(self) -> bool:
@@ -240,8 +246,8 @@ class EstimatorPipeline:
 
     def _gate_gps(self, gps: np.ndarray) -> np.ndarray | None:
         """Reject a fix far outside the estimate's and the receiver's uncertainty."""
-        assert self.estimator is not None
-        nav = self.estimator.navigation()
+        assert self.estimator is not None and self.estimate is not None
+        nav = self.estimator.navigation(self.estimate)
         receiver_var = np.diagonal(self.config.sensors.gps.noise_cov())[:3]
         var = nav.position_sigma_m**2 + receiver_var + self.config.gps_gate_floor_m**2
         d2 = float(np.sum((gps[:3] - nav.position_ned_m) ** 2 / var))
@@ -266,29 +272,34 @@ class EstimatorPipeline:
         )
         # the alignment sample itself is the first step's measurement: start one period earlier
         nav = align(t_s - IMU_PERIOD_S, imu, gps)
-        estimator.initialize_from(nav, imu if cfg.variant == "ukf3" else self._controls)
+        self.estimate = estimator.initial_estimate(nav, self._controls, imu)
         self.estimator = estimator
         self.detector = FaultDetector(estimator.modes, cfg.detector, t_s)
         self._restart_at_s = t_s + cfg.detector.settle_s
 
     def _bridge_gap(self, previous_s: float, gap_steps: int, imu: np.ndarray) -> None:
         """Predict across missing IMU samples with the last controls (no measurement)."""
-        assert self.estimator is not None and self._controls is not None
-        nan = np.full(6, np.nan)  # a non-finite measurement makes the UKF skip its update
+        assert self.estimator is not None and self.estimate is not None
+        assert self._controls is not None
+        nothing = Observation(np.full(6, np.nan))  # non-finite: the UKF skips its update
         for k in range(1, gap_steps + 1):
-            self.estimator.step(previous_s + k * IMU_PERIOD_S, self._controls, nan, None)
+            self.estimate = self.estimator.step(
+                self.estimate, previous_s + k * IMU_PERIOD_S, self._controls, nothing
+            )
 
     def _step(self, t_s: float, imu: np.ndarray, gps: np.ndarray | None) -> EstimateOutput:
         assert self.estimator is not None and self.detector is not None
+        assert self.estimate is not None
         assert self._controls is not None and self.origin is not None
         start = time.perf_counter()
-        est = self.estimator.step(t_s, self._controls, imu, gps)
+        est = self.estimator.step(self.estimate, t_s, self._controls, Observation(imu, gps))
         if self._restart_at_s is not None and t_s >= self._restart_at_s:
-            est = self.estimator.restart_from_fault_free()
+            est = self.estimator.restart_from_fault_free(est)
             self._restart_at_s = None
+        self.estimate = est
         step_us = (time.perf_counter() - start) * 1e6
         self.counters.steps += 1
-        nav = self.estimator.navigation()
+        nav = self.estimator.navigation(est)
         lat, lon, alt = ned_to_geodetic(nav.position_ned_m, self.origin)
         stale = self._actuator_s is None or t_s - self._actuator_s > self.config.actuator_timeout_s
         if stale:
