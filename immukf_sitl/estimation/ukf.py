@@ -13,11 +13,11 @@ Two noise forms:
   covariances, and the measurement step redraws sigma points about the prediction (so that
   ``Q`` reaches ``P_xz`` and ``P_zz``, as in filterpy and in the linear Kalman filter).
 
-The filter's arithmetic is in :mod:`immukf_sitl.estimation.kernels`, four or five calls per
-step; this module calls ``f`` and ``g`` between them, applies the safeguards and counts them in
-:class:`FilterDiagnostics`. The kernels run compiled (``backend="numba"``, the default) or,
-for debugging and for the tests that compare the two, interpreted (``backend="python"``, the
-same source without numba; about a thousand times slower).
+The filter's arithmetic is in :mod:`immukf_sitl.estimation.kernels`, four calls per step in
+the augmented form, seven in the additive one; this module calls ``f`` and ``g`` between them,
+applies the safeguards and counts them in :class:`FilterDiagnostics`. The kernels run compiled
+(``backend="numba"``, the default) or, for debugging and for the tests that compare the two,
+interpreted (``backend="python"``, the same source without numba; hundreds of times slower).
 """
 
 from __future__ import annotations
