@@ -1,4 +1,8 @@
-"""Pure numerics of the estimator: sigma points, UKF, IMM and fault modes. No I/O."""
+"""Pure numerics: sigma points, UKF (eqs. 9-25), IMM (eqs. 6-8, 26-28) and fault modes.
+
+One job: filter arrays. Imports numpy, scipy and numba only; nothing else of the project, no
+I/O, no MAVLink, no aircraft (the models come in as functions, ``docs/conventions.md``).
+"""
 
 from immukf_sitl.estimation.diagnostics import FilterDiagnostics
 from immukf_sitl.estimation.fault_modes import (
