@@ -1,5 +1,6 @@
-"""Command-line options shared by sub-commands, as frozen records with one ``add_arguments`` /
-``from_args`` pair each.
+"""Command-line options shared by sub-commands, as frozen records.
+
+Each record has one ``add_arguments`` / ``from_args`` pair.
 
 Library code takes these records, never an ``argparse.Namespace``. One meaning per flag name
 across every sub-command:

@@ -1,5 +1,6 @@
-"""The truth side: JSBSim aircraft (generated), driver, autopilot, sensor models, flight loop,
-and the two UDP shells (the emitter behind ``immukf-sitl sim``, the fault proxy).
+"""The truth side: JSBSim aircraft, driver, autopilot, sensor models, flight loop, UDP shells.
+
+The shells are the emitter behind ``immukf-sitl sim`` and the fault proxy.
 
 One job: fly the aircraft and produce what its sensors read. Only :mod:`sim.driver` imports
 JSBSim; the autopilot and the sensor models work on the records of :mod:`sim.truth` without it.

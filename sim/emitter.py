@@ -1,5 +1,6 @@
-"""The SITL sensor stream: JSBSim + autopilot + sensor models as MAVLink 2 over UDP
-(``immukf-sitl sim SCENARIO --out udpout:HOST:PORT``).
+"""The SITL sensor stream: JSBSim + autopilot + sensor models as MAVLink 2 over UDP.
+
+``immukf-sitl sim SCENARIO --out udpout:HOST:PORT``.
 
 Per simulation step ``k`` (0.01 s), in this order: HEARTBEAT (1 Hz of sim time, first in its
 step), GPS_RAW_INT (when a fix is due), SERVO_OUTPUT_RAW (the controls acting from this step, as

@@ -1,5 +1,6 @@
-"""The fault proxy: injects a scenario's IMU faults into the HIGHRES_IMU stream between the sim
-and the estimator (``immukf-sitl proxy SCENARIO --in URL --out URL``).
+"""The fault proxy: a scenario's IMU faults injected into the HIGHRES_IMU stream.
+
+It sits between the sim and the estimator: ``immukf-sitl proxy SCENARIO --in URL --out URL``.
 
 Two layers, as a Gymnasium wrapper sits on an environment:
 

@@ -1,5 +1,7 @@
-"""Sensor models of the simulation: IMU and GPS (Beard & McLain, *Small Unmanned Aircraft*,
-2012, ch. 7; defaults in DESIGN.md section 6).
+"""Sensor models of the simulation: IMU and GPS.
+
+Beard & McLain, *Small Unmanned Aircraft*, 2012, ch. 7; the specs and their defaults are
+:mod:`immukf_sitl.models.sensors`.
 
 - IMU, every step (100 Hz): specific force (m/s^2) and inertial body rates (rad/s) in body FRD,
   plus zero-mean white Gaussian noise and an optional constant bias — the HIGHRES_IMU fields

@@ -122,7 +122,7 @@ class TruthState:
     controls: np.ndarray
 
     def sample(self) -> TruthSample:
-        """This state as a flight log holds it (:class:`immukf_sitl.samples.TruthSample`)."""
+        """The state as a flight log holds it (:class:`immukf_sitl.samples.TruthSample`)."""
         return TruthSample(
             self.time_s,
             self.lat_deg,

@@ -10,10 +10,10 @@ import pytest
 from immukf_sitl.models.aero import AeroModel
 from immukf_sitl.models.earth import NedOrigin
 from immukf_sitl.models.params import load_aircraft_params
+from immukf_sitl.models.sensors import ImuSpec
 from sim.driver import JsbsimDriver
 from sim.flight import fly
 from sim.flight_plans import default_flight_plan
-from immukf_sitl.models.sensors import ImuSpec
 
 LBF_N = 4.4482216152605
 FT = 0.3048

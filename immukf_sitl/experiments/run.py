@@ -65,22 +65,27 @@ class RunFiles:
 
     @property
     def sim_tlog(self) -> Path:
+        """The sim's own tlog (sent frames and truth)."""
         return self.out_dir / "sim.tlog"
 
     @property
     def proxy_tlog(self) -> Path:
+        """The proxy's tlog (forwarded stream and fault annotations)."""
         return self.out_dir / "proxy.tlog"
 
     @property
     def flight_tlog(self) -> Path:
+        """The merged flight log that ``replay`` reads."""
         return self.out_dir / "flight.tlog"
 
     @property
     def estimator_tlog(self) -> Path:
+        """What the estimator published."""
         return self.out_dir / "estimator.tlog"
 
     @property
     def plot(self) -> Path:
+        """Mode probabilities and attitude error over time."""
         return self.out_dir / "summary.png"
 
 

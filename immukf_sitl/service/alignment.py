@@ -1,5 +1,6 @@
-"""A navigation solution every filter variant starts from and reports, and the coarse in-flight
-alignment that produces the first one.
+"""The navigation solution every filter variant starts from and reports; coarse alignment.
+
+:func:`align` produces the first one in flight, from one IMU sample and one GPS fix.
 """
 
 from __future__ import annotations
