@@ -40,7 +40,7 @@ LOG_2PI = math.log(2.0 * math.pi)
 
 
 @numba.njit(cache=True, inline="always", error_model="numpy")
-def wrap(angle):
+def wrap(angle: float) -> float:
     """Wrap to [-pi, pi): ``(a + pi) mod 2 pi - pi`` (Python's float modulo, as numpy's).
 
     Also the array form: :func:`immukf_sitl.estimation.angles.wrap_angle` runs this function
@@ -91,10 +91,20 @@ def _cholesky_into(a, out):
 
 
 @numba.njit(cache=True, error_model="numpy")
-def factor(cov, sym, chol):
-    """``sym = (P + P') / 2`` and its lower Cholesky factor ``L L' = sym``, for a stack (B, n, n).
+def factor(cov: np.ndarray, sym: np.ndarray, chol: np.ndarray) -> bool:
+    """``sym = (P + P') / 2`` and its lower Cholesky factor ``L L' = sym``, for a stack.
 
-    Returns False when any factor failed the pivot guard (``chol`` is then incomplete).
+    Parameters
+    ----------
+    cov : ndarray, shape (B, n, n)
+        ``P``, symmetric up to rounding.
+    sym, chol : ndarray, shape (B, n, n)
+        Outputs: the symmetrised ``P`` and ``L`` (zeros above the diagonal).
+
+    Returns
+    -------
+    bool
+        False when any factor failed the pivot guard (``chol`` is then incomplete).
     """
     batch, n, _ = cov.shape
     ok = True
@@ -108,11 +118,18 @@ def factor(cov, sym, chol):
 
 
 @numba.njit(cache=True, error_model="numpy")
-def state_points(mean, sqrt_cov, spread, out):
-    """Eq. (11): ``[x, x + c L[:, 0..n-1], x - c L[:, 0..n-1]]`` into ``out`` (n, B, 2n + 1).
+def state_points(mean: np.ndarray, sqrt_cov: np.ndarray, spread: float, out: np.ndarray) -> None:
+    """Eq. (11): the sigma points ``[x, x + c L[:, 0..n-1], x - c L[:, 0..n-1]]``.
 
-    ``mean`` (B, n), ``sqrt_cov`` (B, n, n) any ``L`` with ``L L' = P``, ``spread`` the ``c``
-    of the sigma-point scheme.
+    Parameters
+    ----------
+    mean : ndarray, shape (B, n)
+    sqrt_cov : ndarray, shape (B, n, n)
+        Any ``L`` with ``L L' = P``.
+    spread : float
+        The ``c`` of the sigma-point scheme.
+    out : ndarray, shape (n, B, 2n + 1)
+        Output.
     """
     batch, n = mean.shape
     for b in range(batch):
@@ -143,12 +160,32 @@ def _noise_rows(noise_sqrt, spread, first, half, b, out):
 
 
 @numba.njit(cache=True, error_model="numpy")
-def augmented_process_points(mean, chol, noise_sqrt, spread, x_out, v_out):
+def augmented_process_points(
+    mean: np.ndarray,
+    chol: np.ndarray,
+    noise_sqrt: np.ndarray,
+    spread: float,
+    x_out: np.ndarray,
+    v_out: np.ndarray,
+) -> None:
     """The ``(x, v)`` parts of the augmented sigma points (eqs. 9-11) whose ``(x, v)`` differ.
 
-    Columns: the centre, ``+`` the ``nx + nv`` state and process-noise directions, ``-`` the
-    same: ``x_out`` (nx, B, nd), ``v_out`` (nv, B, nd) with ``nd = 1 + 2 (nx + nv)``. The
-    points that perturb only the measurement noise share the centre's ``(x, v)``.
+    The augmented mean is ``[x, 0, 0]`` (eq. 9), its square root ``diag(L, sqrt Q, sqrt R)``
+    (eq. 10). Columns written: the centre, ``+`` the ``nx + nv`` state and process-noise
+    directions, ``-`` the same. The points that perturb only the measurement noise share the
+    centre's ``(x, v)``.
+
+    Parameters
+    ----------
+    mean : ndarray, shape (B, nx)
+    chol : ndarray, shape (B, nx, nx)
+        ``L`` with ``L L' = P``.
+    noise_sqrt : ndarray, shape (nv, nv)
+        ``sqrt Q``.
+    spread : float
+        The ``c`` of the sigma-point scheme at the augmented dimension.
+    x_out, v_out : ndarray, shapes (nx, B, nd), (nv, B, nd), ``nd = 1 + 2 (nx + nv)``
+        Outputs.
     """
     batch, nx = mean.shape
     nxv = nx + noise_sqrt.shape[0]
@@ -167,11 +204,23 @@ def augmented_process_points(mean, chol, noise_sqrt, spread, x_out, v_out):
 
 
 @numba.njit(cache=True, error_model="numpy")
-def measurement_noise_points(noise_sqrt, spread, n_xv, out):
-    """The ``w`` rows of the augmented sigma points (eqs. 9-11) into ``out`` (nw, B, S).
+def measurement_noise_points(
+    noise_sqrt: np.ndarray, spread: float, n_xv: int, out: np.ndarray
+) -> None:
+    """The ``w`` rows of the augmented sigma points (eqs. 9-11).
 
-    ``S = 2 n_a + 1`` with ``n_a = n_xv + nw``: only the ``2 nw`` columns after the ``(x, v)``
-    directions of each sign are non-zero.
+    Only the ``2 nw`` columns after the ``(x, v)`` directions of each sign are non-zero.
+
+    Parameters
+    ----------
+    noise_sqrt : ndarray, shape (nw, nw)
+        ``sqrt R``.
+    spread : float
+        The ``c`` of the sigma-point scheme at the augmented dimension ``n_a = n_xv + nw``.
+    n_xv : int
+        ``nx + nv``.
+    out : ndarray, shape (nw, B, 2 n_a + 1)
+        Output.
     """
     n_aug = n_xv + noise_sqrt.shape[1]
     for b in range(out.shape[1]):
@@ -252,14 +301,38 @@ def _weighted_outer(rt, weights, acc):
 
 
 @numba.njit(cache=True, error_model="numpy")
-def predict_moments(moved, src, wm, wc, angle, add_cov, x_points, mean, cov, res):
+def predict_moments(
+    moved: np.ndarray,
+    src: np.ndarray,
+    wm: np.ndarray,
+    wc: np.ndarray,
+    angle: np.ndarray,
+    add_cov: np.ndarray,
+    x_points: np.ndarray,
+    mean: np.ndarray,
+    cov: np.ndarray,
+    res: np.ndarray,
+) -> None:
     """Eqs. (16)-(18): the transformed sigma points and their weighted moments.
 
-    ``moved`` (nx, B, nd) holds ``f`` of the distinct columns (eq. 14); column ``s`` of the full
-    set is ``moved[:, :, src[s]]`` (``src`` is the identity when every column is distinct).
-    Writes the full points ``x_points`` (nx, B, S), ``mean`` (B, nx) (eq. 16), ``cov``
-    (B, nx, nx) ``= sum_s Wc_s r_s r_s' + add_cov`` (eq. 18; symmetric by construction) and
-    the residuals ``r_s`` (eq. 17; angle rows wrapped) into ``res`` (B, nx, S).
+    ``x^ = sum_s Wm_s X_s`` (eq. 16, circular for angles), ``r_s = X_s - x^`` (eq. 17, angles
+    wrapped), ``P = sum_s Wc_s r_s r_s' + add_cov`` (eq. 18, symmetric by construction).
+
+    Parameters
+    ----------
+    moved : ndarray, shape (nx, B, nd)
+        ``f`` of the distinct sigma points (eq. 14).
+    src : ndarray of int64, shape (S,)
+        Column ``s`` of the full set is ``moved[:, :, src[s]]`` (the identity when every column
+        is distinct).
+    wm, wc : ndarray, shape (S,)
+        Mean and covariance weights.
+    angle : ndarray of bool, shape (nx,)
+        Angle rows.
+    add_cov : ndarray, shape (nx, nx)
+        Added to the covariance (``Q`` in the additive form, zeros in the augmented one).
+    x_points, mean, cov, res : ndarray, shapes (nx, B, S), (B, nx), (B, nx, nx), (B, nx, S)
+        Outputs: the full points, ``x^``, ``P``, the residuals.
     """
     nx, batch, nd = moved.shape
     n_sigma = src.size
@@ -287,8 +360,18 @@ def predict_moments(moved, src, wm, wc, angle, add_cov, x_points, mean, cov, res
 
 
 @numba.njit(cache=True, error_model="numpy")
-def centred(points, mean, angle, res):
-    """``res[b, :, s] = points[:, b, s] - mean[b]`` (B, n, S), angle rows wrapped."""
+def centred(points: np.ndarray, mean: np.ndarray, angle: np.ndarray, res: np.ndarray) -> None:
+    """Residuals of eq. (17) about a given mean: ``res[b, :, s] = points[:, b, s] - mean[b]``.
+
+    Parameters
+    ----------
+    points : ndarray, shape (n, B, S)
+    mean : ndarray, shape (B, n)
+    angle : ndarray of bool, shape (n,)
+        Rows wrapped to [-pi, pi).
+    res : ndarray, shape (B, n, S)
+        Output.
+    """
     n, batch, n_sigma = points.shape
     for b in range(batch):
         for i in range(n):
@@ -400,18 +483,46 @@ def _gain_update(
 
 @numba.njit(cache=True, error_model="numpy")
 def update(
-    pred_mean, pred_cov, x_res, z_points, wm, wc, z_angle, x_angle, z, add_r, z_cov, cross,
-    innovation, z_chol, new_mean, new_cov, nis, log_lik,
-):  # fmt: skip
+    pred_mean: np.ndarray, pred_cov: np.ndarray, x_res: np.ndarray, z_points: np.ndarray,
+    wm: np.ndarray, wc: np.ndarray, z_angle: np.ndarray, x_angle: np.ndarray, z: np.ndarray,
+    add_r: np.ndarray, z_cov: np.ndarray, cross: np.ndarray, innovation: np.ndarray,
+    z_chol: np.ndarray, new_mean: np.ndarray, new_cov: np.ndarray, nis: np.ndarray,
+    log_lik: np.ndarray,
+) -> int:  # fmt: skip
     """Eqs. (17), (19)-(25): output moments, innovation and the Kalman update of every filter.
 
-    ``z_cov`` (B, nz, nz) gets ``P_zz + add_r`` (eq. 20; ``add_r`` is ``R`` in the additive
-    form, zeros in the augmented one), ``cross`` (B, nz, nx) ``P_zx`` (eq. 19), ``innovation``
-    (B, nz) ``z - z^`` (eq. 21, angles wrapped), ``z_chol`` the factors of ``P_zz``; then
-    :func:`gain_update`'s outputs. Returns the number of filters whose new mean or covariance
-    is not finite, or -1 when a factor failed the pivot guard: the caller then factors
-    ``z_cov`` itself and calls :func:`gain_update` (the outputs after ``z_chol`` are
-    incomplete).
+    ``z^ = sum_s Wm_s Z_s`` (eq. 17), ``P_zz = sum_s Wc_s (Z_s - z^)(Z_s - z^)' + add_r``
+    (eq. 20), ``P_xz = sum_s Wc_s (X_s - x^)(Z_s - z^)'`` (eq. 19), ``z~ = z - z^`` (eq. 21),
+    then :func:`gain_update` (eqs. 22-25).
+
+    Parameters
+    ----------
+    pred_mean, pred_cov : ndarray, shapes (B, nx), (B, nx, nx)
+        ``x(k+1|k)``, ``P(k+1|k)``.
+    x_res : ndarray, shape (B, nx, S)
+        State residuals ``X_s - x^`` of the points ``z_points`` came from.
+    z_points : ndarray, shape (nz, B, S)
+        ``g`` of the sigma points (eq. 15).
+    wm, wc : ndarray, shape (S,)
+        Mean and covariance weights.
+    z_angle, x_angle : ndarray of bool, shapes (nz,), (nx,)
+        Angle components of the output and the state.
+    z : ndarray, shape (nz,)
+        The measurement.
+    add_r : ndarray, shape (nz, nz)
+        ``R`` in the additive form, zeros in the augmented one.
+    z_cov, cross, innovation, z_chol : ndarray, shapes (B, nz, nz), (B, nz, nx), (B, nz),
+        (B, nz, nz)
+        Outputs: ``P_zz``, ``P_zx`` (transposed ``P_xz``), ``z~``, the factors of ``P_zz``.
+    new_mean, new_cov, nis, log_lik : ndarray, shapes (B, nx), (B, nx, nx), (B,), (B,)
+        Outputs of :func:`gain_update`.
+
+    Returns
+    -------
+    int
+        The number of filters whose new mean or covariance is not finite; -1 when a factor of
+        ``P_zz`` failed the pivot guard: the caller then factors ``z_cov`` itself and calls
+        :func:`gain_update` (the outputs after ``z_chol`` are incomplete).
     """
     nz, batch, n_sigma = z_points.shape
     nx = pred_mean.shape[1]
@@ -444,12 +555,33 @@ def update(
 
 @numba.njit(cache=True, error_model="numpy")
 def gain_update(
-    pred_mean, pred_cov, cross, innovation, z_chol, x_angle, new_mean, new_cov, nis, log_lik
-):
-    """Eqs. (22)-(25) of every filter from given factors ``z_chol`` of ``P_zz``.
+    pred_mean: np.ndarray, pred_cov: np.ndarray, cross: np.ndarray, innovation: np.ndarray,
+    z_chol: np.ndarray, x_angle: np.ndarray, new_mean: np.ndarray, new_cov: np.ndarray,
+    nis: np.ndarray, log_lik: np.ndarray,
+) -> int:  # fmt: skip
+    """Eqs. (22)-(25) of every filter from given factors ``L`` of ``P_zz``.
 
-    See :func:`_gain_update`: ``new_mean`` (B, nx), ``new_cov`` (B, nx, nx), ``nis`` and
-    ``log_lik`` (B,). Returns the number of filters whose new mean or covariance is not finite.
+    With ``W = L^-1 P_zx`` and ``e = L^-1 z~`` (the gain ``K = P_xz P_zz^-1`` of eq. 24 is never
+    formed): ``x = x^- + W' e`` (eq. 22), ``P = P^- - W' W`` (eq. 23 with the Kalman sign; the
+    paper prints ``+ K P_zz K'``), ``NIS = e' e`` and eq. (25) in log space,
+    ``log Lambda = -(NIS + log det P_zz + nz log 2 pi) / 2`` (its printed exponent lacks the
+    minus sign).
+
+    Parameters
+    ----------
+    pred_mean, pred_cov : ndarray, shapes (B, nx), (B, nx, nx)
+        ``x(k+1|k)``, ``P(k+1|k)``.
+    cross, innovation, z_chol : ndarray, shapes (B, nz, nx), (B, nz), (B, nz, nz)
+        ``P_zx``, ``z~`` and lower factors of ``P_zz`` (as :func:`update` writes them).
+    x_angle : ndarray of bool, shape (nx,)
+        Angle components of the state (wrapped after the update).
+    new_mean, new_cov, nis, log_lik : ndarray, shapes (B, nx), (B, nx, nx), (B,), (B,)
+        Outputs: ``x(k+1|k+1)``, ``P(k+1|k+1)``, NIS, ``log Lambda``.
+
+    Returns
+    -------
+    int
+        The number of filters whose new mean or covariance is not finite.
     """
     nz = innovation.shape[1]
     nx = pred_mean.shape[1]
@@ -470,12 +602,28 @@ def gain_update(
 
 
 @numba.njit(cache=True, error_model="numpy")
-def imm_mix(log_transition, log_mu, means, covs, angle, log_c, mixed_mean, mixed_cov):
+def imm_mix(
+    log_transition: np.ndarray, log_mu: np.ndarray, means: np.ndarray, covs: np.ndarray,
+    angle: np.ndarray, log_c: np.ndarray, mixed_mean: np.ndarray, mixed_cov: np.ndarray,
+) -> None:  # fmt: skip
     """Eqs. (6)-(8) in log space for every mode ``j``: ``log c_j``, ``x^0j``, ``P^0j``.
 
     ``c_j = sum_i p_ij mu_i`` (eq. 6) and ``mu_{i|j} = p_ij mu_i / c_j``;
     ``x^0j = sum_i mu_{i|j} x^i`` (eq. 7, circular for angles);
     ``P^0j = sum_i mu_{i|j} [P^i + (x^i - x^0j)(x^i - x^0j)']`` (eq. 8).
+
+    Parameters
+    ----------
+    log_transition : ndarray, shape (r, r)
+        ``log p_ij`` (eq. 3; ``-inf`` for impossible transitions).
+    log_mu : ndarray, shape (r,)
+        ``log mu_i(k)``.
+    means, covs : ndarray, shapes (r, nx), (r, nx, nx)
+        ``x^i(k|k)``, ``P^i(k|k)``.
+    angle : ndarray of bool, shape (nx,)
+        Angle components.
+    log_c, mixed_mean, mixed_cov : ndarray, shapes (r,), (r, nx), (r, nx, nx)
+        Outputs: ``log c_j``, ``x^0j``, ``P^0j``.
     """
     r, nx = means.shape
     mixing = np.empty((r, r))
@@ -546,13 +694,21 @@ def _nan_max(values):
 
 
 @numba.njit(cache=True, error_model="numpy")
-def floor_probabilities(probs, floor, log_probs):
+def floor_probabilities(probs: np.ndarray, floor: float, log_probs: np.ndarray) -> None:
     """Raise every probability to at least ``floor``, taking the mass from the others pro rata.
 
-    In place on ``probs`` (r,), which sums to one; ``log_probs`` gets the logarithms of the
-    changed result. Probabilities below the floor are set to it; the rest are scaled to share
-    what is left, repeated until none falls below (at most ``r`` rounds); the result sums to
-    one. Nothing changes when the floor is 0, no probability is below it, or one is NaN.
+    Probabilities below the floor are set to it; the rest are scaled to share what is left,
+    repeated until none falls below (at most ``r`` rounds); the result sums to one. Nothing
+    changes when the floor is 0, no probability is below it, or one is NaN.
+
+    Parameters
+    ----------
+    probs : ndarray, shape (r,)
+        Probabilities summing to one; floored in place.
+    floor : float
+        The floor, below ``1 / r``.
+    log_probs : ndarray, shape (r,)
+        Gets the logarithms of the floored probabilities (left alone when nothing changes).
     """
     r = probs.size
     lowest = math.inf
@@ -589,12 +745,23 @@ def floor_probabilities(probs, floor, log_probs):
 
 
 @numba.njit(cache=True, error_model="numpy")
-def imm_posterior(log_lik, log_c, floor, log_mu, probs):
+def imm_posterior(
+    log_lik: np.ndarray, log_c: np.ndarray, floor: float, log_mu: np.ndarray, probs: np.ndarray
+) -> None:
     """Eq. (26) in log space, then :func:`floor_probabilities`.
 
     ``mu_j = Lambda_j c_j / sum_i Lambda_i c_i``; the common factor ``max_j Lambda_j`` is divided
     out first so that huge log-likelihoods keep their precision; when no likelihood is finite
     (every mode rejected the data) the predicted odds ``c_j`` are kept.
+
+    Parameters
+    ----------
+    log_lik, log_c : ndarray, shape (r,)
+        ``log Lambda_j(k+1)`` (eq. 25) and ``log c_j`` (eq. 6).
+    floor : float
+        Probability floor (0: none).
+    log_mu, probs : ndarray, shape (r,)
+        Outputs: ``log mu_j(k+1)`` and ``mu_j(k+1)``.
     """
     r = log_lik.size
     best = _nan_max(log_lik)
@@ -614,12 +781,24 @@ def imm_posterior(log_lik, log_c, floor, log_mu, probs):
 
 
 @numba.njit(cache=True, error_model="numpy")
-def imm_combine(means, covs, probs, angle, mean, cov):
+def imm_combine(
+    means: np.ndarray, covs: np.ndarray, probs: np.ndarray, angle: np.ndarray, mean: np.ndarray,
+    cov: np.ndarray,
+) -> None:  # fmt: skip
     """Eqs. (27)-(28): the probability-weighted mean (circular for angles) and covariance.
 
-    Eq. (28) as printed sums over ``j`` but uses ``x^i`` and ``x^0j``; the standard IMM
-    combination, used here, is ``P = sum_j mu_j [P^j + (x^j - x)(x^j - x)']`` (symmetric by
-    construction).
+    ``x = sum_j mu_j x^j`` (eq. 27). Eq. (28) as printed sums over ``j`` but uses ``x^i`` and
+    ``x^0j``; the standard IMM combination, used here, is
+    ``P = sum_j mu_j [P^j + (x^j - x)(x^j - x)']`` (symmetric by construction).
+
+    Parameters
+    ----------
+    means, covs, probs : ndarray, shapes (r, nx), (r, nx, nx), (r,)
+        ``x^j(k+1|k+1)``, ``P^j(k+1|k+1)``, ``mu_j(k+1)``.
+    angle : ndarray of bool, shape (nx,)
+        Angle components.
+    mean, cov : ndarray, shapes (nx,), (nx, nx)
+        Outputs: ``x(k+1|k+1)``, ``P(k+1|k+1)``.
     """
     r, nx = means.shape
     spread = np.empty((r, nx))

@@ -58,7 +58,8 @@ def load_kernels(backend: Backend = "auto") -> ModuleType:
 
     ``"python"`` loads a second copy of :mod:`immukf_sitl.estimation.kernels` with
     ``numba.config.DISABLE_JIT`` set while its decorators run, so that every kernel, and every
-    helper it calls, is the plain Python function.
+    helper it calls, is the plain Python function. (The flag is numba's global: load the
+    interpreted copy before other threads define numba functions; it is cached afterwards.)
     """
     if backend in ("auto", "numba"):
         return kernels
