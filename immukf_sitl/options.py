@@ -22,6 +22,8 @@ from pathlib import Path
 from immukf_sitl.errors import UserError
 from immukf_sitl.estimation.fault_modes import FaultMode
 from immukf_sitl.models.params import load_aircraft_params
+from immukf_sitl.models.sensors import SensorSpec
+from immukf_sitl.scenario import load_sensors
 from immukf_sitl.service.detection import DetectorConfig
 from immukf_sitl.service.filters import VARIANTS
 from immukf_sitl.service.pipeline import EstimatorPipeline, PipelineConfig
@@ -104,6 +106,11 @@ class FilterOptions:
         Process noise and the Markov chain.
     params_path : str or None
         Aircraft parameter YAML (None: the packaged Aerosonde).
+    sensors : SensorSpec
+        What the filter is told about the sensors: noise sigmas and bias sigmas of the spec
+        sheet (``--sensors FILE``), never a simulation's true biases.
+    sensors_path : str or None
+        The file ``sensors`` came from.
     """
 
     variant: str = "imm"
@@ -111,6 +118,8 @@ class FilterOptions:
     detector: DetectorConfig = field(default_factory=DetectorConfig)
     tuning: FilterTuning = field(default_factory=FilterTuning)
     params_path: str | None = None
+    sensors: SensorSpec = field(default_factory=SensorSpec)
+    sensors_path: str | None = None
 
     #: (flag, record, attribute, help): the numeric options, each written once
     _NUMERIC = (
@@ -169,6 +178,15 @@ class FilterOptions:
             metavar="FILE",
             help="aircraft parameter YAML (default: the packaged Aerosonde)",
         )
+        group.add_argument(
+            "--sensors",
+            dest="sensors_path",
+            default=None,
+            metavar="FILE",
+            help="YAML with a scenario's 'sensors:' block (or a whole scenario): the noise and "
+            "bias sigmas the filter assumes (default: Beard & McLain's; `run` passes the "
+            "scenario's own)",
+        )
 
     @classmethod
     def from_args(cls, args: argparse.Namespace) -> FilterOptions:
@@ -195,7 +213,18 @@ class FilterOptions:
             raise UserError(str(exc)) from None
         if args.params_path is not None and not Path(args.params_path).is_file():
             raise UserError(f"--params {args.params_path}: no such file")
-        return cls(args.variant, true_mode, detector, tuning, args.params_path)
+        sensors = SensorSpec()
+        if args.sensors_path is not None:
+            sensors = load_sensors(args.sensors_path).spec_sheet()
+        return cls(
+            args.variant,
+            true_mode,
+            detector,
+            tuning,
+            args.params_path,
+            sensors,
+            args.sensors_path,
+        )
 
     def pipeline(self) -> EstimatorPipeline:
         """The estimator pipeline these options describe (aircraft from ``params_path``)."""
@@ -204,6 +233,7 @@ class FilterOptions:
             true_mode=self.true_mode,
             tuning=self.tuning,
             detector=self.detector,
+            sensors=self.sensors,
         )
         return EstimatorPipeline(load_aircraft_params(self.params_path), config)
 
@@ -216,6 +246,8 @@ class FilterOptions:
             argv += [flag, repr(getattr(getattr(self, record), attribute))]
         if self.params_path is not None:
             argv += ["--params", self.params_path]
+        if self.sensors_path is not None:
+            argv += ["--sensors", self.sensors_path]
         return argv
 
 

@@ -7,7 +7,7 @@ HIL_STATE_QUATERNION.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -113,6 +113,8 @@ class TruthSample:
         True specific force at the IMU, body FRD.
     airspeed_mps : float
         True airspeed.
+    wind_ned_mps : ndarray, shape (3,)
+        Total wind the aircraft feels (steady plus turbulence), NED.
     """
 
     t_s: float
@@ -124,6 +126,7 @@ class TruthSample:
     velocity_ned_mps: np.ndarray
     specific_force_mps2: np.ndarray
     airspeed_mps: float = 0.0
+    wind_ned_mps: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
     def channel(self, index: int) -> float:
         """True value of IMU channel ``index`` (x, y, z specific force; p, q, r)."""

@@ -20,9 +20,20 @@ A wrong file gets one line naming the file, the field and what was expected
         - {north_m: 400, east_m: 0, alt_m: 150, airspeed_mps: 25}
     sensors:                       # optional, defaults of Beard & McLain ch. 7
       imu: {accel_sigma_mps2: 0.0245, gyro_sigma_radps: 0.00227,
-            accel_bias_mps2: [0, 0, 0], gyro_bias_radps: [0, 0, 0]}
+            accel_bias_mps2: [0, 0, 0], gyro_bias_radps: [0, 0, 0],
+            accel_bias_sigma_mps2: 0, gyro_bias_sigma_radps: 0,   # spec sheet: turn-on bias
+            bias_instability: false}       # true: the bias also wanders (Gauss-Markov)
       gps: {rate_hz: 1, north_east_sigma_m: 0.21, height_sigma_m: 0.40,
-            ground_speed_sigma_mps: 0.05, course_sigma_mps: 0.05}
+            ground_speed_sigma_mps: 0.05, course_sigma_mps: 0.05,
+            k_gps_per_s: 0.000909}          # Gauss-Markov position error, 1/1100 1/s
+    airframe:                      # optional: the flown aircraft differs from params.yaml
+      scale: {mass_kg: 1.05, C_m_alpha: 1.1}   # multiply named parameters
+      uncertainty: {aero: 0.10, mass: 0.05, inertia: 0.10}  # 1-sigma relative, drawn from seed
+    wind:                          # optional: JSBSim's own atmosphere
+      speed_mps: 6                 # steady wind at the start height
+      from_deg: 270                # where it blows from, true north
+      down_mps: 0
+      turbulence: light            # none | light | moderate | severe (MIL-F-8785C)
     faults:                        # optional list, applied by the fault proxy
       - t_s: 30                    # start time (s, sim clock)
         end_t_s: 60                # optional: the sensor recovers
@@ -51,7 +62,10 @@ import yaml
 
 from immukf_sitl.errors import UserError
 from immukf_sitl.estimation.fault_modes import IMU_CHANNELS, FaultMode
+from immukf_sitl.models.airframe import AirframeSpec, AirframeUncertainty, scalable_parameters
+from immukf_sitl.models.params import load_aircraft_params
 from immukf_sitl.models.sensors import GpsSpec, ImuSpec, SensorSpec
+from immukf_sitl.models.wind import TURBULENCE_LEVELS, WindSpec
 
 FAULT_KINDS = ("zero", "stuck", "bias", "drift")
 MANOEUVRE_KINDS = ("elevator_doublet", "aileron_doublet", "rudder_doublet")
@@ -189,6 +203,8 @@ class Scenario:
     flight_plan: FlightPlan
     start: StartSpec = field(default_factory=StartSpec)
     sensors: SensorSpec = field(default_factory=SensorSpec)
+    airframe: AirframeSpec = field(default_factory=AirframeSpec)
+    wind: WindSpec = field(default_factory=WindSpec)
     faults: tuple[FaultSpec, ...] = ()
     manoeuvres: tuple[ManoeuvreSpec, ...] = ()
     expect: ExpectSpec | None = None
@@ -361,6 +377,22 @@ def _sensors(r: _Reader) -> SensorSpec:
         gyro_sigma_radps=imu_r.number("gyro_sigma_radps", d_imu.gyro_sigma_radps, lo=0.0),
         accel_bias_mps2=imu_r.vector3("accel_bias_mps2", d_imu.accel_bias_mps2),
         gyro_bias_radps=imu_r.vector3("gyro_bias_radps", d_imu.gyro_bias_radps),
+        accel_bias_sigma_mps2=imu_r.number(
+            "accel_bias_sigma_mps2", d_imu.accel_bias_sigma_mps2, lo=0.0, hi=1.0
+        ),
+        gyro_bias_sigma_radps=imu_r.number(
+            "gyro_bias_sigma_radps", d_imu.gyro_bias_sigma_radps, lo=0.0, hi=0.1
+        ),
+        bias_instability=imu_r.boolean("bias_instability", d_imu.bias_instability),
+        accel_bias_instability_mps2=imu_r.number(
+            "accel_bias_instability_mps2", d_imu.accel_bias_instability_mps2, lo=0.0, hi=1.0
+        ),
+        gyro_bias_instability_radps=imu_r.number(
+            "gyro_bias_instability_radps", d_imu.gyro_bias_instability_radps, lo=0.0, hi=0.1
+        ),
+        bias_time_constant_s=imu_r.number(
+            "bias_time_constant_s", d_imu.bias_time_constant_s, lo=1.0, hi=1e5
+        ),
     )
     imu_r.done()
     gps_r = r.child("gps", {})
@@ -373,10 +405,92 @@ def _sensors(r: _Reader) -> SensorSpec:
             "ground_speed_sigma_mps", d_gps.ground_speed_sigma_mps, lo=0.0
         ),
         course_sigma_mps=gps_r.number("course_sigma_mps", d_gps.course_sigma_mps, lo=0.0),
+        k_gps_per_s=gps_r.number("k_gps_per_s", d_gps.k_gps_per_s, lo=0.0, hi=10.0),
     )
     gps_r.done()
     r.done()
     return SensorSpec(imu=imu, gps=gps)
+
+
+def _airframe(r: _Reader) -> AirframeSpec:
+    """The ``airframe:`` block; ``scale`` names are checked against the parameter file."""
+    scale_r = r.child("scale", {})
+    known = scalable_parameters(load_aircraft_params())
+    for name in scale_r.data:
+        if name not in known:
+            raise ScenarioError(
+                f"{r.path}: {scale_r.name(name)}: unknown parameter (expected a numeric field of "
+                "params.yaml, e.g. mass_kg, Jx_kgm2, C_m_alpha)"
+            )
+    scale = {name: scale_r.number(name, lo=0.0, hi=10.0, lo_open=True) for name in scale_r.data}
+    scale_r.done()
+    unc_r = r.child("uncertainty", {})
+    uncertainty = AirframeUncertainty(
+        aero=unc_r.number("aero", 0.0, lo=0.0, hi=0.5),
+        mass=unc_r.number("mass", 0.0, lo=0.0, hi=0.5),
+        inertia=unc_r.number("inertia", 0.0, lo=0.0, hi=0.5),
+    )
+    unc_r.done()
+    r.done()
+    return AirframeSpec(scale=scale, uncertainty=uncertainty)
+
+
+def _wind(r: _Reader) -> WindSpec:
+    """The ``wind:`` block."""
+    turbulence = r.string("turbulence", "none")
+    if turbulence not in TURBULENCE_LEVELS:
+        r.fail("turbulence", f"one of {', '.join(TURBULENCE_LEVELS)}", turbulence)
+    wind = WindSpec(
+        speed_mps=r.number("speed_mps", 0.0, lo=0.0, hi=30.0),
+        from_deg=r.number("from_deg", 0.0, lo=-360.0, hi=360.0),
+        down_mps=r.number("down_mps", 0.0, lo=-5.0, hi=5.0),
+        turbulence=turbulence,
+    )
+    r.done()
+    return wind
+
+
+def parse_sensors(data: Any, path: str = "<sensors>") -> SensorSpec:
+    """Validate a ``sensors:`` mapping (a scenario's block, or a ``--sensors`` file's content).
+
+    A file may hold the block itself or a mapping with a ``sensors:`` key (a whole scenario).
+    """
+    if isinstance(data, Mapping) and "sensors" in data:
+        return _sensors(_Reader(path, "sensors", data["sensors"]))
+    return _sensors(_Reader(path, "", data if data is not None else {}))
+
+
+def sensors_to_yaml(spec: SensorSpec) -> str:
+    """A ``--sensors`` file holding ``spec`` (every key the ``sensors:`` schema has)."""
+    imu, gps = spec.imu, spec.gps
+    data = {
+        "imu": {
+            "accel_sigma_mps2": imu.accel_sigma_mps2,
+            "gyro_sigma_radps": imu.gyro_sigma_radps,
+            "accel_bias_mps2": list(imu.accel_bias_mps2),
+            "gyro_bias_radps": list(imu.gyro_bias_radps),
+            "accel_bias_sigma_mps2": imu.accel_bias_sigma_mps2,
+            "gyro_bias_sigma_radps": imu.gyro_bias_sigma_radps,
+            "bias_instability": imu.bias_instability,
+            "accel_bias_instability_mps2": imu.accel_bias_instability_mps2,
+            "gyro_bias_instability_radps": imu.gyro_bias_instability_radps,
+            "bias_time_constant_s": imu.bias_time_constant_s,
+        },
+        "gps": {
+            "rate_hz": gps.rate_hz,
+            "north_east_sigma_m": gps.north_east_sigma_m,
+            "height_sigma_m": gps.height_sigma_m,
+            "ground_speed_sigma_mps": gps.ground_speed_sigma_mps,
+            "course_sigma_mps": gps.course_sigma_mps,
+            "k_gps_per_s": gps.k_gps_per_s,
+        },
+    }
+    return yaml.safe_dump({"sensors": data}, sort_keys=False)
+
+
+def load_sensors(path: str | Path) -> SensorSpec:
+    """Read a ``--sensors`` file; raises :class:`ScenarioError` with one line."""
+    return parse_sensors(_load_yaml(Path(path), "sensors file"), str(path))
 
 
 def parse_scenario(data: Any, path: str = "<scenario>") -> Scenario:
@@ -426,6 +540,8 @@ def parse_scenario(data: Any, path: str = "<scenario>") -> Scenario:
         start=start,
         flight_plan=_flight_plan(r.child("flight_plan")),
         sensors=sensors,
+        airframe=_airframe(r.child("airframe", {})),
+        wind=_wind(r.child("wind", {})),
         faults=faults,
         manoeuvres=manoeuvres,
         expect=expect,
@@ -435,21 +551,24 @@ def parse_scenario(data: Any, path: str = "<scenario>") -> Scenario:
     return scenario
 
 
-def load_scenario(path: str | Path) -> Scenario:
-    """Read and validate a scenario file; raises :class:`ScenarioError` with one line."""
-    path = Path(path)
+def _load_yaml(path: Path, what: str) -> Any:
+    """The parsed YAML of ``path``; any failure is a one-line :class:`ScenarioError`."""
     try:
         text = path.read_text(encoding="utf-8")
     except UnicodeDecodeError:
         raise ScenarioError(f"{path}: not a text (UTF-8) file") from None
     except FileNotFoundError:
-        raise ScenarioError(f"{path}: no such scenario file") from None
+        raise ScenarioError(f"{path}: no such {what}") from None
     except OSError as exc:
         raise ScenarioError(f"{path}: cannot read: {exc.strerror}") from None
     try:
-        data = yaml.safe_load(text)
+        return yaml.safe_load(text)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f" at line {mark.line + 1}" if mark is not None else ""
         raise ScenarioError(f"{path}: not valid YAML{where}") from None
-    return parse_scenario(data, str(path))
+
+
+def load_scenario(path: str | Path) -> Scenario:
+    """Read and validate a scenario file; raises :class:`ScenarioError` with one line."""
+    return parse_scenario(_load_yaml(Path(path), "scenario file"), str(path))

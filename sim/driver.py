@@ -32,9 +32,11 @@ import jsbsim
 import numpy as np
 import pymap3d
 from scipy.optimize import least_squares
+from scipy.spatial.transform import Rotation
 
 from immukf_sitl.models.params import AircraftParams, load_aircraft_params
 from immukf_sitl.models.sensors import IMU_PERIOD_S
+from immukf_sitl.models.wind import WindSpec
 from sim.aircraft_xml import AIRCRAFT_NAME
 from sim.truth import InitialConditions, TrimResult, TruthState
 
@@ -47,6 +49,8 @@ __all__ = [
 _FT = 0.3048  # m per ft
 _LBF = 4.4482216152605  # N per lbf
 _SLUG = 14.5939029372  # kg per slug
+#: ``atmosphere/turb-type`` of JSBSim's MIL-F-8785C Dryden turbulence.
+_TURB_MILSPEC_DRYDEN = 3
 
 # Silence JSBSim's banner and load messages (a class-level debug level shared by all instances).
 jsbsim.FGJSBBase().debug_lvl = 0
@@ -101,6 +105,8 @@ class JsbsimDriver:
         params: AircraftParams | None = None,
         dt_s: float = IMU_PERIOD_S,
         root_dir: Path | None = None,
+        wind: WindSpec | None = None,
+        turbulence_seed: int = 0,
     ) -> None:
         self.initial = initial if initial is not None else InitialConditions()
         self.params = params if params is not None else load_aircraft_params()
@@ -120,6 +126,8 @@ class JsbsimDriver:
         self._controls = np.array([0.0, 0.0, 0.0, 0.0])
         self._trim: TrimResult | None = None
         self._origin = (self.initial.lat_deg, self.initial.lon_deg, self.initial.alt_m)
+        self.wind = wind if wind is not None else WindSpec()
+        self._turbulence_seed = int(turbulence_seed) % (2**31 - 1)
 
     # ------------------------------------------------------------------------------- set-up
 
@@ -158,10 +166,43 @@ class JsbsimDriver:
         fdm["fcs/rudder-cmd-norm"] = float(controls[2] / self._limits_rad[2])
         fdm["fcs/throttle-cmd-norm"] = float(controls[3])
 
+    def _set_air(self, calm: bool) -> np.ndarray:
+        """Set JSBSim's steady wind and turbulence (still air if ``calm``); the wind, NED m/s."""
+        fdm, wind = self._fdm, self.wind
+        steady = np.zeros(3) if calm else wind.steady_ned_mps()
+        fdm["atmosphere/wind-north-fps"] = steady[0] / _FT
+        fdm["atmosphere/wind-east-fps"] = steady[1] / _FT
+        fdm["atmosphere/wind-down-fps"] = steady[2] / _FT
+        level = wind.level
+        if calm or level.name == "none":
+            fdm["atmosphere/turb-type"] = 0
+        else:
+            fdm["atmosphere/randomseed"] = self._turbulence_seed
+            fdm["atmosphere/turb-type"] = _TURB_MILSPEC_DRYDEN
+            fdm["atmosphere/turbulence/milspec/windspeed_at_20ft_AGL-fps"] = level.w20_mps / _FT
+            fdm["atmosphere/turbulence/milspec/severity"] = level.severity_index
+        return steady
+
     def _set_ic(
-        self, alpha_rad: float, beta_rad: float, phi_rad: float, controls: np.ndarray
+        self,
+        alpha_rad: float,
+        beta_rad: float,
+        phi_rad: float,
+        controls: np.ndarray,
+        calm: bool = True,
     ) -> None:
+        """Initial conditions at the airspeed, ``alpha``, ``beta`` relative to the air.
+
+        JSBSim's ``ic/{u,v,w}-fps`` are velocities over the ground in body axes: in wind they
+        are the air-relative velocity plus the wind rotated into the body, so that the aircraft
+        starts trimmed with respect to the air it flies in.
+        """
         ic, fdm = self.initial, self._fdm
+        wind_ned = np.zeros(3) if calm else self.wind.steady_ned_mps()
+        wind_body = (
+            Rotation.from_euler("ZYX", [ic.heading_rad, alpha_rad, phi_rad]).as_matrix().T
+            @ wind_ned
+        ) / _FT
         va_fps = ic.airspeed_mps / _FT
         fdm["ic/lat-geod-deg"] = ic.lat_deg
         fdm["ic/long-gc-deg"] = ic.lon_deg
@@ -169,9 +210,9 @@ class JsbsimDriver:
         fdm["ic/phi-rad"] = phi_rad
         fdm["ic/theta-rad"] = alpha_rad
         fdm["ic/psi-true-rad"] = ic.heading_rad
-        fdm["ic/u-fps"] = va_fps * math.cos(alpha_rad) * math.cos(beta_rad)
-        fdm["ic/v-fps"] = va_fps * math.sin(beta_rad)
-        fdm["ic/w-fps"] = va_fps * math.sin(alpha_rad) * math.cos(beta_rad)
+        fdm["ic/u-fps"] = va_fps * math.cos(alpha_rad) * math.cos(beta_rad) + wind_body[0]
+        fdm["ic/v-fps"] = va_fps * math.sin(beta_rad) + wind_body[1]
+        fdm["ic/w-fps"] = va_fps * math.sin(alpha_rad) * math.cos(beta_rad) + wind_body[2]
         fdm["ic/p-rad_sec"] = 0.0
         fdm["ic/q-rad_sec"] = 0.0
         fdm["ic/r-rad_sec"] = 0.0
@@ -179,6 +220,7 @@ class JsbsimDriver:
         self._controls = np.array(controls, dtype=float)
         if not fdm.run_ic():
             raise JsbsimError("JSBSim run_ic() failed")
+        self._set_air(calm)  # after run_ic, which resets the atmosphere's wind to the IC's
 
     def _accelerations(self) -> np.ndarray:
         fdm = self._fdm
@@ -279,7 +321,7 @@ class JsbsimDriver:
                 controls = self._trim.controls
             if alpha_rad is None:
                 alpha_rad, beta_rad = self._trim.alpha_rad, self._trim.beta_rad
-        self._set_ic(alpha_rad, beta_rad, 0.0, np.asarray(controls, dtype=float))
+        self._set_ic(alpha_rad, beta_rad, 0.0, np.asarray(controls, dtype=float), calm=False)
         self._fix_origin()
         return self.truth()
 
@@ -387,6 +429,13 @@ class JsbsimDriver:
             beta_rad=float(fdm["aero/beta-rad"]),
             specific_force_body_mps2=_readonly(specific_force),
             controls=_readonly(controls),
+            wind_ned_mps=_readonly(
+                [
+                    fdm["atmosphere/total-wind-north-fps"] * _FT,
+                    fdm["atmosphere/total-wind-east-fps"] * _FT,
+                    fdm["atmosphere/total-wind-down-fps"] * _FT,
+                ]
+            ),
         )
 
     def get_property(self, name: str) -> float:

@@ -45,6 +45,7 @@ import sys
 import time
 from collections import Counter
 from dataclasses import dataclass
+from pathlib import Path
 from types import FrameType
 
 from immukf_sitl.errors import UserError
@@ -55,6 +56,7 @@ from immukf_sitl.mavlink.codec import (
     servo_output_raw_message,
     statustext_message,
     truth_message,
+    truth_wind_message,
 )
 from immukf_sitl.mavlink.flightlog import scenario_annotation
 from immukf_sitl.mavlink.tlog import TlogWriter
@@ -391,6 +393,7 @@ class SimEmitter:
         if self.tlog is not None:
             self._truth_file.time_s = record.time_s
             self._truth_mav.send(self.encoder.truth_message(record))
+            self._truth_mav.send(truth_wind_message(record.truth.sample()))
 
     def _progress(self, record: FlightRecord, started: float, sent_steps: int) -> None:
         wall = time.monotonic() - started
@@ -509,6 +512,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     add_tlog_argument(parser, "every frame sent plus the truth")
     parser.add_argument(
+        "--out-dir",
+        default=None,
+        metavar="DIR",
+        help="where a perturbed airframe's JSBSim aircraft is written (scenario 'airframe:'; "
+        "default: a temporary directory)",
+    )
+    parser.add_argument(
         "--window",
         type=int,
         default=DEFAULT_WINDOW_STEPS,
@@ -559,7 +569,9 @@ def run_sim(args: argparse.Namespace) -> int:
     scenario = load_scenario(args.scenario)
     duration_s = args.duration if args.duration is not None else scenario.duration_s
     mode = "realtime" if args.realtime else "free-run" if args.free_run else "lockstep"
-    flight = flight_from_scenario(scenario)
+    flight = flight_from_scenario(
+        scenario, out_dir=Path(args.out_dir) if args.out_dir is not None else None
+    )
     steps = int(round(duration_s / flight.driver.dt_s))
     try:
         connection = connect(args.out_url, SIM_SYSTEM_ID, SIM_COMPONENT_ID, input_=False)
@@ -597,8 +609,11 @@ def run_sim(args: argparse.Namespace) -> int:
             tlog.close()
         connection.close()
     print(stats.summary_line(), file=sys.stderr, flush=True)
+    if flight.airframe_factors:
+        factors = ", ".join(f"{k} x{v:.3f}" for k, v in sorted(flight.airframe_factors.items()))
+        print(f"sim: airframe differs from the book: {factors}", file=sys.stderr, flush=True)
     if args.json:
-        print(json.dumps(stats.as_dict()), flush=True)
+        print(json.dumps({**stats.as_dict(), "airframe": flight.airframe_factors}), flush=True)
     if stats.stopped_by is not None:
         return 128 + int(signal.Signals[stats.stopped_by])
     return 0

@@ -23,11 +23,13 @@ from __future__ import annotations
 
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
 from immukf_sitl.models.params import AircraftParams, load_aircraft_params
 from immukf_sitl.models.sensors import IMU_PERIOD_S, GpsSpec, ImuSpec
+from immukf_sitl.models.wind import WindSpec
 from immukf_sitl.samples import GpsSample, ImuSample
 from immukf_sitl.scenario import FlightPlan, ManoeuvreSpec
 from sim.autopilot import Autopilot, AutopilotGains, AutopilotStatus, NavigationState
@@ -36,6 +38,13 @@ from sim.sensors import GpsModel, ImuModel
 from sim.truth import InitialConditions, TrimResult, TruthState
 
 __all__ = ["Flight", "FlightRecord", "fly"]
+
+
+#: Children of ``numpy.random.SeedSequence(seed)`` of the sim's random sources beyond the IMU
+#: noise (0) and the GPS (1): the fault proxy uses 2, the airframe draw 3
+#: (:data:`immukf_sitl.models.airframe.AIRFRAME_STREAM_INDEX`).
+TURBULENCE_STREAM_INDEX = 4
+IMU_BIAS_STREAM_INDEX = 5
 
 
 @dataclass(frozen=True)
@@ -97,6 +106,11 @@ class Flight:
         Step (s), default 0.01.
     manoeuvres : sequence of ManoeuvreSpec, optional
         Control doublets added on top of the autopilot's commands (default none).
+    wind : WindSpec, optional
+        Steady wind and turbulence of JSBSim's atmosphere (default still air).
+    root_dir : Path, optional
+        JSBSim root directory holding the aircraft (default the packaged one; a perturbed
+        airframe is rendered into a directory of its own).
     """
 
     def __init__(
@@ -110,20 +124,39 @@ class Flight:
         gains: AutopilotGains | None = None,
         dt_s: float = IMU_PERIOD_S,
         manoeuvres: Sequence[ManoeuvreSpec] = (),
+        wind: WindSpec | None = None,
+        root_dir: Path | None = None,
     ) -> None:
         self.params = params if params is not None else load_aircraft_params()
         self.plan = plan
         self.seed = int(seed)
-        self.driver = JsbsimDriver(initial=initial, params=self.params, dt_s=dt_s)
+        turbulence_sequence = np.random.SeedSequence(
+            self.seed, spawn_key=(TURBULENCE_STREAM_INDEX,)
+        )
+        turbulence_seed = int(turbulence_sequence.generate_state(1)[0])
+        self.driver = JsbsimDriver(
+            initial=initial,
+            params=self.params,
+            dt_s=dt_s,
+            root_dir=root_dir,
+            wind=wind,
+            turbulence_seed=turbulence_seed,
+        )
         imu_seed, gps_seed = np.random.SeedSequence(self.seed).spawn(2)
+        bias_seed = np.random.SeedSequence(self.seed, spawn_key=(IMU_BIAS_STREAM_INDEX,))
         self.imu = ImuModel(
-            imu_spec if imu_spec is not None else ImuSpec(), np.random.default_rng(imu_seed)
+            imu_spec if imu_spec is not None else ImuSpec(),
+            np.random.default_rng(imu_seed),
+            bias_rng=np.random.default_rng(bias_seed),
+            dt_s=dt_s,
         )
         self.gps = GpsModel(
             gps_spec if gps_spec is not None else GpsSpec(), np.random.default_rng(gps_seed)
         )
         self._gains = gains
         self.manoeuvres = tuple(manoeuvres)
+        #: factors of the parameters that differ from the book's (see ``airframe.py``)
+        self.airframe_factors: dict[str, float] = {}
         self._autopilot: Autopilot | None = None
         self._last: FlightRecord | None = None
 

@@ -26,7 +26,7 @@ import math
 import numpy as np
 import pymap3d
 
-from immukf_sitl.models.sensors import GpsSpec, ImuSpec
+from immukf_sitl.models.sensors import IMU_PERIOD_S, GpsSpec, ImuSpec
 from immukf_sitl.samples import GpsSample, ImuSample
 from sim.truth import TruthState
 
@@ -34,21 +34,58 @@ __all__ = ["GpsModel", "ImuModel"]
 
 
 class ImuModel:
-    """Accelerometers and rate gyros with white noise and a constant bias.
+    """Accelerometers and rate gyros with white noise and a bias.
+
+    The bias of each channel is the spec's constant bias, plus a turn-on bias drawn once per run
+    from the spec sheet's bias sigma, plus (``bias_instability``) a first-order Gauss-Markov
+    wander started from its stationary distribution.
 
     Parameters
     ----------
     spec : ImuSpec
         Noise and bias.
     rng : numpy.random.Generator
-        Source of all the noise.
+        Source of the white noise.
+    bias_rng : numpy.random.Generator, optional
+        Source of the turn-on bias and the wander (a stream of its own, so that switching a
+        bias on leaves the white noise of the same seed unchanged); required when the spec has
+        a bias sigma or a wander.
+    dt_s : float
+        Sample period (s), for the wander's discretisation.
     """
 
-    def __init__(self, spec: ImuSpec, rng: np.random.Generator) -> None:
+    def __init__(
+        self,
+        spec: ImuSpec,
+        rng: np.random.Generator,
+        bias_rng: np.random.Generator | None = None,
+        dt_s: float = IMU_PERIOD_S,
+    ) -> None:
         self.spec = spec
         self._rng = rng
-        self._accel_bias = np.array(spec.accel_bias_mps2, dtype=float)
-        self._gyro_bias = np.array(spec.gyro_bias_radps, dtype=float)
+        self._bias_rng = bias_rng
+        random_bias = bool(np.any(spec.bias_sigmas > 0.0)) or spec.bias_instability
+        if random_bias and bias_rng is None:
+            raise ValueError("ImuModel: a bias sigma or bias_instability needs bias_rng")
+        self._bias = np.concatenate([spec.accel_bias_mps2, spec.gyro_bias_radps]).astype(float)
+        if bias_rng is not None and np.any(spec.bias_sigmas > 0.0):
+            self._bias = self._bias + spec.bias_sigmas * bias_rng.standard_normal(6)
+        self._wander = np.zeros(6)
+        self._decay = 1.0
+        self._drive = np.zeros(6)
+        if spec.bias_instability:
+            assert bias_rng is not None
+            stationary = np.array(
+                [spec.accel_bias_instability_mps2] * 3 + [spec.gyro_bias_instability_radps] * 3
+            )
+            self._decay = math.exp(-dt_s / spec.bias_time_constant_s)
+            self._drive = stationary * math.sqrt(1.0 - self._decay**2)
+            self._wander = stationary * bias_rng.standard_normal(6)
+
+    @property
+    def bias(self) -> np.ndarray:
+        """The current true bias of ``[f_x, f_y, f_z, p, q, r]`` (m/s^2, rad/s), a copy."""
+        return self._bias + self._wander
 
     def read(self, truth: TruthState) -> ImuSample:
         """Sample the IMU at a truth state.
@@ -64,12 +101,14 @@ class ImuModel:
             Truth plus bias plus noise.
         """
         noise = self._rng.standard_normal(6)
-        accel = (
-            truth.specific_force_body_mps2
-            + self._accel_bias
-            + self.spec.accel_sigma_mps2 * noise[:3]
-        )
-        gyro = truth.rates_body_radps + self._gyro_bias + self.spec.gyro_sigma_radps * noise[3:]
+        if self.spec.bias_instability:
+            assert self._bias_rng is not None
+            self._wander = self._decay * self._wander + self._drive * (
+                self._bias_rng.standard_normal(6)
+            )
+        bias = self._bias + self._wander
+        accel = truth.specific_force_body_mps2 + bias[:3] + self.spec.accel_sigma_mps2 * noise[:3]
+        gyro = truth.rates_body_radps + bias[3:] + self.spec.gyro_sigma_radps * noise[3:]
         return ImuSample(time_s=truth.time_s, accel_mps2=accel, gyro_radps=gyro)
 
 

@@ -7,7 +7,7 @@ to JSBSim. Frames and units follow ``docs/conventions.md``.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -104,6 +104,9 @@ class TruthState:
     controls : numpy.ndarray
         ``(4,)`` ``[delta_e, delta_a, delta_r (rad), delta_t (0..1)]`` acting at this step
         (after JSBSim's clipping to the surface limits).
+    wind_ned_mps : numpy.ndarray
+        ``(3,)`` total wind the aircraft feels, steady plus turbulence, NED (m/s), from
+        ``atmosphere/total-wind-{north,east,down}-fps``.
     """
 
     time_s: float
@@ -120,6 +123,7 @@ class TruthState:
     beta_rad: float
     specific_force_body_mps2: np.ndarray
     controls: np.ndarray
+    wind_ned_mps: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
     def sample(self) -> TruthSample:
         """The state as a flight log holds it (:class:`immukf_sitl.samples.TruthSample`)."""
@@ -133,6 +137,7 @@ class TruthState:
             np.asarray(self.velocity_ned_mps),
             np.asarray(self.specific_force_body_mps2),
             self.airspeed_mps,
+            np.asarray(self.wind_ned_mps),
         )
 
     def state_vector(self) -> np.ndarray:

@@ -42,6 +42,7 @@ ALLOWED = (
             "immukf_sitl.errors",
             "immukf_sitl.estimation",
             "immukf_sitl.models",
+            "immukf_sitl.scenario",
             "immukf_sitl.service",
         },
     ),  # fmt: skip

@@ -147,7 +147,10 @@ def test_truth_is_only_in_the_tlog(free_run):
     assert logged[0].get_type() == "STATUSTEXT" and logged[0].text == "SCENARIO q-gyro-zeroed"
     truth = [m for m in logged if m.get_type() == "HIL_STATE_QUATERNION"]
     sent = [m for m in logged if m.get_srcComponent() == 1]
-    assert len(truth) == STEPS and summary["tlog_records"] == len(logged) == len(sent) + STEPS + 1
+    wind = [m for m in logged if m.get_type() == "WIND_COV"]
+    assert "WIND_COV" not in wire_types
+    assert len(truth) == len(wind) == STEPS
+    assert summary["tlog_records"] == len(logged) == len(sent) + 2 * STEPS + 1
     # every frame sent is in the log, byte for byte, in order
     assert [bytes(m.get_msgbuf()) for m in sent] == datagrams
     # one truth per step, with the step's time, after the step's frames
@@ -157,13 +160,19 @@ def test_truth_is_only_in_the_tlog(free_run):
     assert all(position[id(t)] == position[id(i)] + 1 for t, i in zip(truth, imu, strict=True))
     # truth frames have their own component and an unbroken sequence
     assert {(m.get_srcSystem(), m.get_srcComponent()) for m in truth} == {(1, TRUTH_COMPONENT_ID)}
-    assert [m.get_seq() for m in truth] == [(k + 1) % 256 for k in range(STEPS)]
+    truth_stream = [m for m in logged if m.get_srcComponent() == TRUTH_COMPONENT_ID]
+    assert [m.get_seq() for m in truth_stream] == [k % 256 for k in range(2 * STEPS + 1)]
+    # each truth record is followed by the wind of the same step
+    assert all(
+        position[id(w)] == position[id(t)] + 1 and w.time_usec == t.time_usec
+        for t, w in zip(truth, wind, strict=True)
+    )
     # records are stamped with sim time: the step's time for the step's frames and truth
     step_time = 0.0
     for message in logged[1:]:
         if message.get_type() == "HIGHRES_IMU":
             step_time = message.time_usec * 1e-6
-        if message.get_type() in ("HIGHRES_IMU", "HIL_STATE_QUATERNION"):
+        if message.get_type() in ("HIGHRES_IMU", "HIL_STATE_QUATERNION", "WIND_COV"):
             assert message._timestamp == pytest.approx(step_time, abs=1e-6)
         else:
             assert step_time - 1e-6 <= message._timestamp <= step_time + 0.0100001

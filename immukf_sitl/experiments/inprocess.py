@@ -12,6 +12,7 @@ controls through the same PWM map.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 from immukf_sitl.experiments.report import EstimateHistory, Summary, summarize
@@ -31,10 +32,11 @@ class InProcessRun:
     history: EstimateHistory
     truth: tuple[TruthSample, ...]
     pipeline: EstimatorPipeline
+    airframe: dict[str, float]
 
     def summary(self) -> Summary:
         """The run/replay summary."""
-        return summarize(
+        summary = summarize(
             self.scenario.name,
             self.scenario.faults,
             self.truth,
@@ -45,6 +47,9 @@ class InProcessRun:
             self.scenario.expect,
             settle_s=self.pipeline.config.detector.settle_s,
         )
+        return dataclasses.replace(
+            summary, airframe=self.airframe, wind=dataclasses.asdict(self.scenario.wind)
+        )
 
 
 def run_inprocess(
@@ -52,8 +57,15 @@ def run_inprocess(
     config: PipelineConfig | None = None,
     duration_s: float | None = None,
 ) -> InProcessRun:
-    """Fly ``scenario`` through the fault injector into the estimator, in one process."""
+    """Fly ``scenario`` through the fault injector into the estimator, in one process.
+
+    The filter keeps the book's aircraft and, unless ``config`` says otherwise, is told the
+    scenario's sensor spec sheet (sigmas, not the true biases); the flight flies the scenario's
+    airframe and air.
+    """
     params = load_aircraft_params()
+    if config is None:
+        config = PipelineConfig(sensors=scenario.sensors.spec_sheet())
     pipeline = EstimatorPipeline(params, config)
     flight = flight_from_scenario(scenario, params)
     injector = FaultInjector.from_scenario(scenario)
@@ -73,4 +85,6 @@ def run_inprocess(
         truth.append(record.truth.sample())
         if out is not None:
             outputs.append(out)
-    return InProcessRun(scenario, EstimateHistory(tuple(outputs)), tuple(truth), pipeline)
+    return InProcessRun(
+        scenario, EstimateHistory(tuple(outputs)), tuple(truth), pipeline, flight.airframe_factors
+    )

@@ -130,6 +130,8 @@ class Summary:
     files: dict[str, str] | None = None
     tlog: str | None = None
     note: str | None = None
+    airframe: dict[str, float] | None = None
+    wind: dict | None = None
     extra: dict = field(default_factory=dict)
 
     def to_json(self) -> dict[str, object]:
@@ -164,6 +166,8 @@ class Summary:
             "files": self.files,
             "tlog": self.tlog,
             "note": self.note,
+            "airframe": self.airframe,
+            "wind": self.wind,
         }
         out.update({k: v for k, v in optional.items() if v is not None})
         out.update(self.extra)

@@ -35,7 +35,7 @@ from immukf_sitl.experiments.report import (
 from immukf_sitl.mavlink.flightlog import merge_flight_log, read_estimator_log, read_flight_log
 from immukf_sitl.mavlink.listener import GroundStationListener
 from immukf_sitl.options import RunOptions
-from immukf_sitl.scenario import Scenario, load_scenario
+from immukf_sitl.scenario import Scenario, load_scenario, sensors_to_yaml
 from immukf_sitl.service.detection import DetectionEvent
 from immukf_sitl.service.timing import TimingStats
 
@@ -84,6 +84,11 @@ class RunFiles:
         return self.out_dir / "estimator.tlog"
 
     @property
+    def sensors(self) -> Path:
+        """The sensor spec sheet handed to the estimator (``--sensors``)."""
+        return self.out_dir / "sensors.yaml"
+
+    @property
     def plot(self) -> Path:
         """Mode probabilities and attitude error over time."""
         return self.out_dir / "summary.png"
@@ -103,7 +108,7 @@ def fly_chain(scenario: Scenario, options: RunOptions, files: RunFiles) -> Chain
                   "--out", f"udpout:127.0.0.1:{p_est}", "--tlog", str(files.proxy_tlog),
                   "--json"]  # fmt: skip
     sim_argv = ["sim", options.scenario_path, "--out", f"udpout:127.0.0.1:{p_proxy}",
-                "--tlog", str(files.sim_tlog), "--json",
+                "--tlog", str(files.sim_tlog), "--json", "--out-dir", str(files.out_dir),
                 "--ack-timeout", str(ACK_TIMEOUT_S)]  # fmt: skip
     if options.realtime:
         sim_argv += ["--realtime"]
@@ -160,6 +165,13 @@ def run_scenario(scenario: Scenario, options: RunOptions, out_dir: Path) -> Summ
     """Fly the chain, merge the logs and summarise (see the module docstring)."""
     out_dir.mkdir(parents=True, exist_ok=True)
     files = RunFiles(out_dir)
+    if options.filter.sensors_path is None:
+        # the filter is told what the scenario's spec sheet says, never its true biases
+        files.sensors.write_text(sensors_to_yaml(scenario.sensors.spec_sheet()))
+        sensors = dataclasses.replace(
+            options.filter, sensors=scenario.sensors.spec_sheet(), sensors_path=str(files.sensors)
+        )
+        options = dataclasses.replace(options, filter=sensors)
     chain = fly_chain(scenario, options, files)
     merge_flight_log(files.proxy_tlog, files.sim_tlog, files.flight_tlog, options.truth_hz)
     if not options.keep_intermediate:
@@ -187,7 +199,10 @@ def run_scenario(scenario: Scenario, options: RunOptions, out_dir: Path) -> Summ
         lag_us=TimingStats.from_json(serve_stats.get("lag_us")),
         wall_s=chain.wall_s,
         sim_time_s=options.duration_s or scenario.duration_s,
-        received_truth_messages=serve_stats.get("received", {}).get("HIL_STATE_QUATERNION", 0),
+        received_truth_messages=serve_stats.get("received", {}).get("HIL_STATE_QUATERNION", 0)
+        + serve_stats.get("received", {}).get("WIND_COV", 0),
+        airframe=chain.sim.get("airframe", {}),
+        wind=dataclasses.asdict(scenario.wind),
         stream={
             "sim": chain.sim.get("sent"),
             "proxy": {k: v for k, v in chain.proxy.items() if k != "sent"},

@@ -185,6 +185,24 @@ def truth_message(truth: TruthSample) -> MavMessage:
     )
 
 
+def truth_wind_message(truth: TruthSample) -> MavMessage:
+    """WIND_COV of the total wind the aircraft felt (truth, for the tlog only, never sent).
+
+    ``wind_x, wind_y, wind_z`` are NED (m/s), ``time_usec`` the truth's; the variances are 0
+    (it is the truth) and ``wind_alt`` the height above the ellipsoid (m).
+    """
+    wind = np.asarray(truth.wind_ned_mps, dtype=float)
+    return mavlink.MAVLink_wind_cov_message(
+        usec(truth.t_s), float(wind[0]), float(wind[1]), float(wind[2]), 0.0, 0.0,
+        float(truth.alt_m), 0.0, 0.0,
+    )  # fmt: skip
+
+
+def decode_truth_wind(msg: MavMessage) -> tuple[float, np.ndarray]:
+    """WIND_COV of the truth to ``(t_s, wind_ned_mps)``."""
+    return msg.time_usec * 1e-6, np.array([msg.wind_x, msg.wind_y, msg.wind_z], dtype=float)
+
+
 def decode_truth(msg: MavMessage) -> TruthSample:
     """HIL_STATE_QUATERNION to a :class:`TruthSample`."""
     return TruthSample(

@@ -5,7 +5,8 @@ frame. The project writes two kinds:
 
 - a **flight log**: the sensor stream exactly as the estimator received it (HEARTBEAT,
   GPS_RAW_INT, SERVO_OUTPUT_RAW, HIGHRES_IMU with any injected fault), the sim's truth
-  (HIL_STATE_QUATERNION, which never travels to the estimator) and the fault proxy's
+  (HIL_STATE_QUATERNION and WIND_COV, the total wind it felt, NED m/s; neither travels to the
+  estimator) and the fault proxy's
   annotations (STATUSTEXT ``FAULT <kind> <channels> t=<s>`` and ``FAULT END ...``, from the
   proxy's component, also never forwarded), and a first STATUSTEXT ``SCENARIO <name>``. Record
   timestamps are sim time.
@@ -15,6 +16,7 @@ frame. The project writes two kinds:
 
 from __future__ import annotations
 
+import dataclasses
 import re
 from collections.abc import Iterable
 from dataclasses import dataclass, field
@@ -110,6 +112,10 @@ def read_flight_log(path: str | Path) -> FlightLog:
                 log.stream.append(codec.decode_servo_output_raw(msg))
             elif kind == "HIL_STATE_QUATERNION":
                 log.truth.append(codec.decode_truth(msg))
+            elif kind == "WIND_COV" and log.truth:
+                t_s, wind = codec.decode_truth_wind(msg)
+                if abs(log.truth[-1].t_s - t_s) < 1e-6:  # the truth record of the same step
+                    log.truth[-1] = dataclasses.replace(log.truth[-1], wind_ned_mps=wind)
             elif kind == "STATUSTEXT":
                 named = SCENARIO_TEXT.match(msg.text)
                 if named and log.scenario is None:
@@ -212,13 +218,18 @@ def merge_flight_log(
     period = 1.0 / truth_hz if truth_hz else 0.0
     parser = mavlink.MAVLink(None)
     parser.robust_parsing = True
+    kept = False
     for t_s, frame in read_records(sim_tlog):
         msgs = parser.parse_buffer(frame) or []
         kind = msgs[0].get_type() if msgs else ""
         if kind == "HIL_STATE_QUATERNION":
-            if t_s + 1e-9 >= next_truth_s:
+            kept = t_s + 1e-9 >= next_truth_s
+            if kept:
                 truth.append((t_s, frame))
                 next_truth_s = t_s + period
+        elif kind == "WIND_COV":
+            if kept:  # the wind of a truth record that was kept
+                truth.append((t_s, frame))
         elif kind == "STATUSTEXT" and SCENARIO_TEXT.match(msgs[0].text):
             truth.append((t_s, frame))
     merged = sorted(

@@ -13,6 +13,7 @@ Beard & McLain, *Small Unmanned Aircraft*, 2012, ch. 7 (DESIGN.md section 6):
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 
@@ -52,19 +53,46 @@ class ImuSpec:
         White-noise standard deviation of each rate gyro (rad/s).
     accel_bias_mps2, gyro_bias_radps : tuple of float
         Constant biases the simulation adds (m/s^2, rad/s). The filter is never told them.
+    accel_bias_sigma_mps2, gyro_bias_sigma_radps : float
+        Turn-on bias sigma of the spec sheet (m/s^2, rad/s): the simulation draws a turn-on bias
+        per run and per channel from it (added to the constant biases); the filter may use the
+        sigma, never the drawn value.
+    bias_instability : bool
+        Whether the bias also wanders, as a first-order Gauss-Markov process of time constant
+        ``bias_time_constant_s`` and stationary sigma ``accel_bias_instability_mps2`` /
+        ``gyro_bias_instability_radps``.
+    accel_bias_instability_mps2, gyro_bias_instability_radps : float
+        Stationary sigma of the wander (defaults: a tactical MEMS IMU's bias instability, about
+        0.2 mg and 10 deg/h).
+    bias_time_constant_s : float
+        Correlation time of the wander (s).
     """
 
     accel_sigma_mps2: float = 0.0245
     gyro_sigma_radps: float = 0.00227
     accel_bias_mps2: tuple[float, float, float] = (0.0, 0.0, 0.0)
     gyro_bias_radps: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    accel_bias_sigma_mps2: float = 0.0
+    gyro_bias_sigma_radps: float = 0.0
+    bias_instability: bool = False
+    accel_bias_instability_mps2: float = 0.002
+    gyro_bias_instability_radps: float = 5e-5
+    bias_time_constant_s: float = 300.0
 
     def __post_init__(self) -> None:
-        if not (self.accel_sigma_mps2 >= 0.0 and self.gyro_sigma_radps >= 0.0):
-            raise ValueError(
-                "accel_sigma_mps2, gyro_sigma_radps: expected values >= 0, got "
-                f"{self.accel_sigma_mps2}, {self.gyro_sigma_radps}"
-            )
+        sigmas = {
+            "accel_sigma_mps2": self.accel_sigma_mps2,
+            "gyro_sigma_radps": self.gyro_sigma_radps,
+            "accel_bias_sigma_mps2": self.accel_bias_sigma_mps2,
+            "gyro_bias_sigma_radps": self.gyro_bias_sigma_radps,
+            "accel_bias_instability_mps2": self.accel_bias_instability_mps2,
+            "gyro_bias_instability_radps": self.gyro_bias_instability_radps,
+        }
+        for name, value in sigmas.items():
+            if not (math.isfinite(value) and value >= 0.0):
+                raise ValueError(f"{name}: expected a value >= 0, got {value}")
+        if not self.bias_time_constant_s > 0.0:
+            raise ValueError(f"bias_time_constant_s: expected > 0, got {self.bias_time_constant_s}")
         _check_vector3("accel_bias_mps2", self.accel_bias_mps2)
         _check_vector3("gyro_bias_radps", self.gyro_bias_radps)
 
@@ -76,6 +104,17 @@ class ImuSpec:
     def noise_cov(self) -> np.ndarray:
         """``R`` of the six IMU channels (6x6, diagonal)."""
         return np.diag(self.sigmas**2)
+
+    @property
+    def bias_sigmas(self) -> np.ndarray:
+        """Turn-on bias sigmas of ``[f_x, f_y, f_z, p, q, r]`` (m/s^2, rad/s)."""
+        return np.array([self.accel_bias_sigma_mps2] * 3 + [self.gyro_bias_sigma_radps] * 3)
+
+    def spec_sheet(self) -> ImuSpec:
+        """What a filter may be told: the sigmas, without the simulation's true bias values."""
+        return dataclasses.replace(
+            self, accel_bias_mps2=(0.0, 0.0, 0.0), gyro_bias_radps=(0.0, 0.0, 0.0)
+        )
 
 
 @dataclass(frozen=True)
@@ -146,3 +185,7 @@ class SensorSpec:
 
     imu: ImuSpec = field(default_factory=ImuSpec)
     gps: GpsSpec = field(default_factory=GpsSpec)
+
+    def spec_sheet(self) -> SensorSpec:
+        """What a filter may be told (true bias values removed; sigmas kept)."""
+        return SensorSpec(self.imu.spec_sheet(), self.gps)
