@@ -262,6 +262,7 @@ def fly(
     gps_spec: GpsSpec | None = None,
     gains: AutopilotGains | None = None,
     manoeuvres: Sequence[ManoeuvreSpec] = (),
+    wind: WindSpec | None = None,
 ) -> Iterator[FlightRecord]:
     """Fly a plan on truth navigation and yield one record per 0.01 s step.
 
@@ -273,7 +274,7 @@ def fly(
         Seed of all sensor noise.
     duration_s : float
         Simulated time (s); records from 0 to ``duration_s`` inclusive.
-    initial, params, imu_spec, gps_spec, gains, manoeuvres
+    initial, params, imu_spec, gps_spec, gains, manoeuvres, wind
         As for :class:`Flight`.
 
     Yields
@@ -290,6 +291,7 @@ def fly(
         gps_spec=gps_spec,
         gains=gains,
         manoeuvres=manoeuvres,
+        wind=wind,
     )
     record = flight.start()
     yield record
