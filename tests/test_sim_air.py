@@ -230,3 +230,14 @@ def test_the_sensors_file_reaches_the_filters_R(tmp_path):
     assert np.diag(imu_r(default))[3] == pytest.approx(0.00227**2)
     assert np.diag(imu_r(told))[3] == pytest.approx(0.01**2)
     assert np.diag(imu_r(told))[0] == pytest.approx(0.0245**2)
+
+
+def test_every_drawn_airframe_is_a_body_that_can_exist():
+    book = load_aircraft_params()
+    spec = AirframeSpec({}, AirframeUncertainty(aero=0.1, mass=0.05, inertia=0.1))
+    jz = []
+    for seed in range(300):
+        factors = airframe_factors(book, spec, seed)
+        flown = scaled_params(book, factors)  # raises on a non-physical inertia
+        jz.append(flown.mass.Jz_kgm2 / book.mass.Jz_kgm2)
+    assert 0.05 < float(np.std(jz)) < 0.12  # about the 10 % asked for

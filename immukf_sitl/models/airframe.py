@@ -5,8 +5,12 @@ simulated aircraft differ from ``params.yaml`` while the filter keeps ``params.y
 
 - ``scale``: multiply named numeric parameters (``mass_kg``, ``Jx_kgm2``, ``C_m_alpha``, ...);
 - ``uncertainty``: 1-sigma relative errors drawn per run from the scenario's seed, for every
-  aerodynamic coefficient (``C_*``), the mass, and the inertias (``Jx``, ``Jy``, ``Jz``,
-  ``Jxz``), each parameter with its own factor ``1 + sigma * N(0, 1)``.
+  aerodynamic coefficient (``C_*``), the mass, and the inertias, each parameter with its own
+  factor ``1 + sigma * N(0, 1)``. The inertias are drawn as a body, not as three numbers: a
+  fixed wing is nearly flat (``Jz`` is about ``Jx + Jy``; the Aerosonde's principal moments
+  miss the triangle inequality's limit by 10 %), so independent 10 % errors would often give
+  a body that cannot exist. ``Jx``, ``Jy`` and ``Jxz`` get their own factors and ``Jz`` is
+  ``Jx' + Jy' - d'``, where ``d = Jx + Jy - Jz`` (the thickness term) gets its own factor too.
 
 The factors actually used are reported (the run summary's ``airframe`` key), so a flight can be
 rebuilt from its summary.
@@ -106,10 +110,18 @@ def airframe_factors(params: AircraftParams, spec: AirframeSpec, seed: int) -> d
             relative = sigma.inertia
         else:
             relative = 0.0
-        factor = float(spec.scale.get(name, 1.0)) * (1.0 + relative * draw)
+        factors[name] = 1.0 + relative * draw
+    if sigma.inertia > 0.0:
+        mass = params.mass
+        jx, jy = mass.Jx_kgm2 * factors["Jx_kgm2"], mass.Jy_kgm2 * factors["Jy_kgm2"]
+        thickness = (mass.Jx_kgm2 + mass.Jy_kgm2 - mass.Jz_kgm2) * max(factors["Jz_kgm2"], 0.0)
+        factors["Jz_kgm2"] = (jx + jy - thickness) / mass.Jz_kgm2
+    out = {}
+    for name, drawn in factors.items():
+        factor = float(spec.scale.get(name, 1.0)) * drawn
         if factor != 1.0:
-            factors[name] = factor
-    return factors
+            out[name] = factor
+    return out
 
 
 def scaled_params(params: AircraftParams, factors: Mapping[str, float]) -> AircraftParams:
