@@ -4,8 +4,6 @@ Conventions (state, control, noise, array layout): ``docs/conventions.md``.
 """
 
 from immukf_sitl.models.aero import (
-    ACCEL_NOISE_MPS2,
-    GYRO_NOISE_RADPS,
     AeroModel,
     drag_coefficient,
     lift_coefficient,
@@ -35,8 +33,6 @@ from immukf_sitl.models.params import (
 )
 
 __all__ = [
-    "ACCEL_NOISE_MPS2",
-    "GYRO_NOISE_RADPS",
     "Actuators",
     "AeroCoefficients",
     "AeroModel",

@@ -26,7 +26,6 @@ position is converted to latitude/longitude with the full WGS-84 ellipsoid at th
 State, controls, noise and array layout: ``docs/conventions.md`` (state axis first).
 """
 
-import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import ClassVar, Literal
@@ -35,36 +34,18 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.optimize import least_squares
 
-from immukf_sitl.models.earth import (
-    ISA_DENSITY_EXPONENT,
-    ISA_EARTH_RADIUS_M,
-    ISA_LAPSE_OVER_T0_PM,
-    ISA_RHO0_KGPM3,
-    NedOrigin,
-    isa_density_kgpm3,
-    isa_density_unchecked,
-    normal_gravity_mps2,
-)
+from immukf_sitl.models import aero_kernels as kernels
+from immukf_sitl.models.earth import NedOrigin, isa_density_kgpm3, normal_gravity_mps2
 from immukf_sitl.models.params import AeroCoefficients, AircraftParams, Propulsion
+from immukf_sitl.models.sensors import IMU_PERIOD_S
 
 __all__ = [
-    "ACCEL_NOISE_MPS2",
-    "GYRO_NOISE_RADPS",
     "AeroModel",
     "drag_coefficient",
     "lift_coefficient",
     "propeller_thrust_torque",
     "stall_blend_sigma",
 ]
-
-#: Accelerometer white-noise sigma (Beard & McLain ch. 7: 0.0025 g).
-ACCEL_NOISE_MPS2 = 0.0245
-#: Rate-gyro white-noise sigma (Beard & McLain ch. 7: 0.13 deg/s).
-GYRO_NOISE_RADPS = 0.00227
-#: Process noise is this many times the IMU noise (paper, section 3).
-PROCESS_NOISE_FACTOR = 100.0
-
-_TWO_PI = 2.0 * math.pi
 
 
 def stall_blend_sigma(alpha_rad: ArrayLike, M: float, alpha0_rad: float) -> np.ndarray:
@@ -84,26 +65,22 @@ def stall_blend_sigma(alpha_rad: ArrayLike, M: float, alpha0_rad: float) -> np.n
     numpy.ndarray
         sigma in [0, 1]: 0 in the linear range, 1 beyond stall.
     """
-    alpha = np.asarray(alpha_rad, dtype=float)
-    e_minus = np.exp(-M * (alpha - alpha0_rad))
-    e_plus = np.exp(M * (alpha + alpha0_rad))
-    # eq. (4.10)
-    return (1.0 + e_minus + e_plus) / ((1.0 + e_minus) * (1.0 + e_plus))
+    return kernels.uncompiled.stall_blend_sigma(np.asarray(alpha_rad, dtype=float), M, alpha0_rad)
 
 
 def lift_coefficient(alpha_rad: ArrayLike, aero: AeroCoefficients) -> np.ndarray:
     """Static lift coefficient C_L(alpha) with stall blending (Beard & McLain eq. 4.9)."""
     alpha = np.asarray(alpha_rad, dtype=float)
-    sigma = stall_blend_sigma(alpha, aero.M, aero.alpha0_rad)
-    sin_a = np.sin(alpha)
-    flat_plate = 2.0 * np.sign(alpha) * sin_a * sin_a * np.cos(alpha)
-    # eq. (4.9)
-    return (1.0 - sigma) * (aero.C_L_0 + aero.C_L_alpha * alpha) + sigma * flat_plate
+    return kernels.uncompiled.lift_coefficient(
+        alpha, np.sin(alpha), np.cos(alpha), aero.C_L_0, aero.C_L_alpha, aero.M, aero.alpha0_rad
+    )
 
 
 def drag_coefficient(alpha_rad: ArrayLike, aero: AeroCoefficients) -> np.ndarray:
     """Static drag coefficient, the linear law C_D = C_D_0 + C_D_alpha alpha (DESIGN.md s. 6)."""
-    return aero.C_D_0 + aero.C_D_alpha * np.asarray(alpha_rad, dtype=float)
+    return kernels.uncompiled.drag_coefficient(
+        np.asarray(alpha_rad, dtype=float), aero.C_D_0, aero.C_D_alpha
+    )
 
 
 def propeller_thrust_torque(
@@ -122,7 +99,7 @@ def propeller_thrust_torque(
     evaluated in the cancellation-free form ``Omega = -2 c / (b + sqrt(b^2 - 4 a c))`` (which
     stays finite at ``rho = 0``). Then, with ``n = Omega / (2 pi)`` and ``J = Va / (n D)``,
     ``T = rho n^2 D^4 C_T(J)`` and ``Q = rho n^2 D^5 C_Q(J)``, expanded so that no division by
-    Omega occurs.
+    Omega occurs (the model's kernel :func:`immukf_sitl.models.aero_kernels.propeller`).
 
     Parameters
     ----------
@@ -143,73 +120,18 @@ def propeller_thrust_torque(
         Aerodynamic torque on the propeller (N m); the airframe feels ``-torque_Nm`` about x.
     """
     prop = params.propulsion if isinstance(params, AircraftParams) else params
-    return _prop_thrust_torque(
+    return kernels.uncompiled.propeller(
         np.asarray(Va_mps, dtype=float),
         np.asarray(delta_t, dtype=float),
         np.asarray(rho_kgpm3, dtype=float),
-        _PropConstants.of(prop),
+        kernels.pack_propulsion(prop),
     )
-
-
-@dataclass(frozen=True)
-class _PropConstants:
-    """Propeller coefficients with the powers of D folded in (per unit density)."""
-
-    a_q: float  # D^5 C_Q0 / (2 pi)^2
-    b_q: float  # D^4 C_Q1 / (2 pi)
-    c_q: float  # D^3 C_Q2
-    b_motor: float  # K_Q K_V / R
-    c_volt: float  # K_Q V_max / R
-    c_i0: float  # K_Q i0
-    t_0: float  # D^4 C_T0 / (2 pi)^2
-    t_1: float  # D^3 C_T1 / (2 pi)
-    t_2: float  # D^2 C_T2
-
-    @classmethod
-    def of(cls, prop: Propulsion) -> "_PropConstants":
-        d = prop.prop_diameter_m
-        kq = prop.K_Q_Nm_per_A
-        kv = prop.K_V_Vs_per_rad
-        return cls(
-            a_q=d**5 * prop.C_Q[0] / _TWO_PI**2,
-            b_q=d**4 * prop.C_Q[1] / _TWO_PI,
-            c_q=d**3 * prop.C_Q[2],
-            b_motor=kq * kv / prop.R_motor_ohm,
-            c_volt=kq * prop.V_max_V / prop.R_motor_ohm,
-            c_i0=kq * prop.i0_A,
-            t_0=d**4 * prop.C_T[0] / _TWO_PI**2,
-            t_1=d**3 * prop.C_T[1] / _TWO_PI,
-            t_2=d**2 * prop.C_T[2],
-        )
-
-
-def _prop_thrust_torque(
-    va: np.ndarray, delta_t: np.ndarray, rho: np.ndarray, k: _PropConstants
-) -> tuple[np.ndarray, np.ndarray]:
-    # Supplement ch. 4: motor-propeller torque balance, positive root for Omega.
-    a = rho * k.a_q
-    b = rho * k.b_q * va + k.b_motor
-    c = rho * k.c_q * va * va - k.c_volt * delta_t + k.c_i0
-    disc = np.maximum(b * b - 4.0 * a * c, 0.0)  # >= 0 for every physical input; guards sigmas
-    omega = -2.0 * c / (b + np.sqrt(disc))
-    omega_va = omega * va
-    omega2 = omega * omega
-    va2 = va * va
-    # T = rho n^2 D^4 C_T(J), Q = rho n^2 D^5 C_Q(J), expanded in Omega and Va
-    thrust = rho * (k.t_0 * omega2 + k.t_1 * omega_va + k.t_2 * va2)
-    torque = rho * (k.a_q * omega2 + k.b_q * omega_va + k.c_q * va2)
-    return thrust, torque
 
 
 def _writeable_contiguous(a: np.ndarray) -> np.ndarray:
     """``a`` as a C-contiguous float array the kernels accept (a copy only when needed)."""
     a = np.ascontiguousarray(a, dtype=float)
     return a if a.flags.writeable else a.copy()
-
-
-def _wrap_pi(angle: np.ndarray) -> np.ndarray:
-    """Wrap angles to [-pi, pi)."""
-    return (angle + math.pi) % _TWO_PI - math.pi
 
 
 @dataclass(frozen=True)
@@ -234,9 +156,10 @@ class AeroModel:
     gravity_gradient_ps2 : float, optional
         ``d g / d pD`` (1/s^2); default the free-air gradient at the origin (about 3.1e-6).
     backend : {"auto", "numpy", "numba"}
-        Implementation of :meth:`step`, :meth:`derivatives` and :meth:`imu`: the numpy code is
-        the reference; "numba" runs compiled loops of the same equations (about 20 times
-        faster on a (12, 7, 49) batch); "auto" takes numba when it is installed.
+        How :meth:`step`, :meth:`derivatives`, :meth:`forces_moments` and :meth:`imu` run the
+        equations of :mod:`immukf_sitl.models.aero_kernels`: "numba" (and "auto") in compiled
+        loops over the batch's columns, "numpy" uncompiled over whole rows of the batch (the
+        reference; about 20 times slower on a (12, 7, 49) batch).
 
     Notes
     -----
@@ -248,7 +171,7 @@ class AeroModel:
 
     params: AircraftParams
     origin: NedOrigin = NedOrigin(0.0, 0.0, 0.0)
-    dt_s: float = 0.01
+    dt_s: float = IMU_PERIOD_S
     density_kgpm3: float | None = None
     gravity_mps2: float | None = None
     gravity_gradient_ps2: float | None = None
@@ -282,16 +205,15 @@ class AeroModel:
     #: State indices that are wrapped angles (phi, psi; theta never nears +-pi).
     angle_indices: ClassVar[tuple[int, ...]] = (6, 8)
 
-    _c: dict = field(init=False, repr=False, compare=False)
-    _kernel: object = field(init=False, repr=False, compare=False)
+    _k: np.ndarray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         if not self.dt_s > 0.0:
             raise ValueError(f"AeroModel.dt_s: expected > 0, got {self.dt_s}")
-        p = self.params
-        m, g = p.mass, p.geometry
-        jx, jy, jz, jxz = m.Jx_kgm2, m.Jy_kgm2, m.Jz_kgm2, m.Jxz_kgm2
-        gam = jx * jz - jxz**2  # eq. (3.13)
+        if self.backend not in ("auto", "numpy", "numba"):
+            raise ValueError(
+                f"AeroModel.backend: expected 'auto', 'numpy' or 'numba', got {self.backend!r}"
+            )
         lat, h0 = self.origin.lat_deg, self.origin.alt_m
         g0 = float(normal_gravity_mps2(lat, h0)) if self.gravity_mps2 is None else self.gravity_mps2
         if self.gravity_gradient_ps2 is None:
@@ -303,73 +225,19 @@ class AeroModel:
             isa_density_kgpm3(h0)  # validates the origin altitude
         elif not self.density_kgpm3 >= 0.0:
             raise ValueError(f"AeroModel.density_kgpm3: expected >= 0, got {self.density_kgpm3}")
-        r_imu = np.asarray(g.imu_position_m, dtype=float)
-        c = {
-            # eq. (3.13): Gamma terms of the inertia matrix
-            "G1": jxz * (jx - jy + jz) / gam,
-            "G2": (jz * (jz - jy) + jxz**2) / gam,
-            "G3": jz / gam,
-            "G4": jxz / gam,
-            "G5": (jz - jx) / jy,
-            "G6": jxz / jy,
-            "G7": ((jx - jy) * jx + jxz**2) / gam,
-            "G8": jx / gam,
-            "inv_jy": 1.0 / jy,
-            "inv_mass": 1.0 / m.mass_kg,
-            "g0": g0,
-            "dg": dg,
-            "h0": h0,
-            "rho": self.density_kgpm3,
-            "c_2": 0.5 * g.c_m,  # c / 2 multiplies q / Va
-            "b_2": 0.5 * g.b_m,  # b / 2 multiplies p / Va, r / Va
-            "prop": _PropConstants.of(p.propulsion),
-            "torque_on_roll": p.propulsion.prop_torque_on_roll,
-            "imu_lever": r_imu if np.any(r_imu != 0.0) else None,
-        }
-        object.__setattr__(self, "_c", c)
-        object.__setattr__(self, "_kernel", self._make_kernel())
-
-    def _make_kernel(self) -> "tuple[object, np.ndarray] | None":
-        """The numba module and its packed constants, or None for the numpy reference."""
-        if self.backend == "numpy":
-            return None
-        try:
-            from immukf_sitl.models import _aero_numba
-        except ImportError:
-            if self.backend == "numba":
-                raise
-            return None
-        c = self._c
-        a = self.params.aero
-        g = self.params.geometry
-        values = {name: c[name] for name in ("G1", "G2", "G3", "G4", "G5", "G6", "G7", "G8")}
-        values |= {name: c[name] for name in ("inv_jy", "inv_mass", "g0", "dg", "h0")}
-        values |= {
-            "rho_const": -1.0 if c["rho"] is None else c["rho"],
-            "S": g.S_m2,
-            "b": g.b_m,
-            "c": g.c_m,
-            "c_2": c["c_2"],
-            "b_2": c["b_2"],
-            "alpha0": a.alpha0_rad,
-            "torque_on_roll": 1.0 if c["torque_on_roll"] else 0.0,
-            "isa_r0": ISA_EARTH_RADIUS_M,
-            "isa_lapse_t0": ISA_LAPSE_OVER_T0_PM,
-            "isa_rho0": ISA_RHO0_KGPM3,
-            "isa_exp": ISA_DENSITY_EXPONENT,
-        }
-        lever = c["imu_lever"]
-        values |= dict(zip(("imu_rx", "imu_ry", "imu_rz"), (0.0, 0.0, 0.0) if lever is None
-                           else lever, strict=True))  # fmt: skip
-        values["has_lever"] = 0.0 if lever is None else 1.0
-        values |= {f.name: getattr(a, f.name) for f in dataclasses.fields(a)}
-        values |= dataclasses.asdict(c["prop"])
-        return _aero_numba, _aero_numba.pack_constants(values)
+        k = kernels.pack_constants(
+            self.params,
+            gravity_mps2=g0,
+            gravity_gradient_ps2=dg,
+            origin_alt_m=h0,
+            density_kgpm3=self.density_kgpm3,
+        )
+        object.__setattr__(self, "_k", k)
 
     @property
     def uses_numba(self) -> bool:
         """True when the compiled kernels are in use."""
-        return self._kernel is not None
+        return self.backend != "numpy"
 
     @staticmethod
     def _flat(x: np.ndarray, u: np.ndarray, v: np.ndarray | None, n: int):
@@ -403,36 +271,24 @@ class AeroModel:
             u2 = np.broadcast_to(u, (u.shape[0], *x.shape[1:])).reshape(u.shape[0], n)
         return x2, _writeable_contiguous(u2)
 
-    # -----------------------------------------------------------------------------------------
-    # constructors and noise
-
-    @classmethod
-    def at_origin(
-        cls, params: AircraftParams, origin: NedOrigin, dt_s: float = 0.01
-    ) -> "AeroModel":
-        """Model about ``origin`` with normal gravity and ISA density there (the defaults)."""
-        return cls(params=params, origin=origin, dt_s=dt_s)
-
     @staticmethod
-    def process_noise_cov() -> np.ndarray:
-        """Default process noise covariance Q (6x6) of ``v``.
-
-        Diagonal: ``(100 * 0.0245 m/s^2)^2`` on u_dot, v_dot, w_dot and
-        ``(100 * 0.00227 rad/s^2)^2`` on p_dot, q_dot, r_dot (paper, section 3: model
-        uncertainty two orders of magnitude above the IMU noise, Beard & McLain ch. 7).
-        """
-        sig = PROCESS_NOISE_FACTOR * np.array([ACCEL_NOISE_MPS2] * 3 + [GYRO_NOISE_RADPS] * 3)
-        return np.diag(sig**2)
+    def _rows(x: np.ndarray, v: np.ndarray | None) -> np.ndarray:
+        """Process noise for the uncompiled kernels: rows that broadcast against x's."""
+        if v is None:
+            return np.zeros(6)
+        v = np.asarray(v, dtype=float)
+        if v.ndim == 1 and x.ndim > 1:
+            return v.reshape((6,) + (1,) * (x.ndim - 1))
+        return v
 
     # -----------------------------------------------------------------------------------------
     # forces and moments
 
     def density(self, x: np.ndarray) -> np.ndarray | float:
         """Air density (kg/m^3) at the state's altitude (ISA) or the constant override."""
-        rho = self._c["rho"]
-        if rho is not None:
-            return rho
-        return isa_density_kgpm3(self._c["h0"] - np.asarray(x)[2])
+        if self.density_kgpm3 is not None:
+            return self.density_kgpm3
+        return isa_density_kgpm3(self.origin.alt_m - np.asarray(x)[2])
 
     def forces_moments(self, t_s: float, x: np.ndarray, u: np.ndarray) -> np.ndarray:
         """Aerodynamic + propulsive forces and moments in body axes, gravity excluded.
@@ -443,92 +299,15 @@ class AeroModel:
             ``(6, *batch)`` ``[f_x, f_y, f_z (N), l, m, n (N m)]`` about the CG.
         """
         x = np.asarray(x, dtype=float)
+        u = np.asarray(u, dtype=float)
         out = np.empty((6, *x.shape[1:]), dtype=float)
-        self._forces_moments_into(x, np.asarray(u, dtype=float), out)
-        return out
-
-    def _forces_moments_into(self, x: np.ndarray, u: np.ndarray, out: np.ndarray) -> None:
-        """Forces and moments into ``out`` (6, *batch) with the selected backend."""
-        if self._kernel is not None:
-            module, consts = self._kernel
+        if self.uses_numba:
             n = x[0].size
             x2, u2 = self._flat_xu(x, u, n)
-            module.forces_moments_batch(x2, u2, consts, out.reshape(6, n))
-            return
-        self._forces_moments(x, u, out)
-
-    def _forces_moments(self, x: np.ndarray, u: np.ndarray, out: np.ndarray) -> None:
-        """Fill ``out[0:6]`` with body forces (N) and moments (N m) about the CG."""
-        c = self._c
-        a = self.params.aero
-        uu, vv, ww = x[3], x[4], x[5]
-        p, q, r = x[9], x[10], x[11]
-        de, da, dr, dt = u[0], u[1], u[2], u[3]
-        rho = c["rho"] if c["rho"] is not None else isa_density_unchecked(c["h0"] - x[2])
-
-        va2 = uu * uu + vv * vv + ww * ww
-        va = np.sqrt(va2)
-        alpha = np.arctan2(ww, uu)  # eq. (2.8)
-        beta = np.arctan2(vv, np.sqrt(uu * uu + ww * ww))  # eq. (2.8), = asin(v / Va)
-        ca = np.cos(alpha)
-        sa = np.sin(alpha)
-        # dynamic pressure; the rate terms 1/2 rho Va^2 C (c q / (2 Va)) are written as
-        # 1/2 rho Va C (c/2) q, which stays finite at Va = 0
-        qbar = 0.5 * rho * va2
-        qv = 0.5 * rho * va
-
-        # lift and drag coefficients, eqs. (4.9), (4.10); linear drag (DESIGN.md s. 6)
-        e_minus = np.exp(-a.M * (alpha - a.alpha0_rad))
-        e_plus = np.exp(a.M * (alpha + a.alpha0_rad))
-        sigma = (1.0 + e_minus + e_plus) / ((1.0 + e_minus) * (1.0 + e_plus))
-        c_lift = (1.0 - sigma) * (a.C_L_0 + a.C_L_alpha * alpha) + sigma * (
-            2.0 * np.sign(alpha) * sa * sa * ca
-        )
-        c_drag = a.C_D_0 + a.C_D_alpha * alpha
-        cq = c["c_2"] * q
-        s = self.params.geometry.S_m2
-        # eq. (4.6), (4.7): stability-axis lift and drag (N)
-        lift = s * (qbar * (c_lift + a.C_L_delta_e * de) + qv * a.C_L_q * cq)
-        drag = s * (qbar * (c_drag + a.C_D_delta_e * de) + qv * a.C_D_q * cq)
-
-        bp = c["b_2"] * p
-        br = c["b_2"] * r
-        thrust, torque = _prop_thrust_torque(va, dt, rho, c["prop"])
-
-        # eq. (4.18): stability -> body; side force eq. (4.14)
-        out[0] = -ca * drag + sa * lift + thrust
-        out[1] = s * (
-            qbar * (a.C_Y_0 + a.C_Y_beta * beta + a.C_Y_delta_a * da + a.C_Y_delta_r * dr)
-            + qv * (a.C_Y_p * bp + a.C_Y_r * br)
-        )
-        out[2] = -sa * drag - ca * lift
-        # eq. (4.19): moments in body axes
-        b_m = self.params.geometry.b_m
-        roll = (
-            s
-            * b_m
-            * (
-                qbar
-                * (a.C_ell_0 + a.C_ell_beta * beta + a.C_ell_delta_a * da + a.C_ell_delta_r * dr)
-                + qv * (a.C_ell_p * bp + a.C_ell_r * br)
-            )
-        )
-        if c["torque_on_roll"]:
-            roll = roll - torque  # reaction of the propeller torque (supplement ch. 4)
-        out[3] = roll
-        out[4] = (
-            s
-            * self.params.geometry.c_m
-            * (qbar * (a.C_m_0 + a.C_m_alpha * alpha + a.C_m_delta_e * de) + qv * a.C_m_q * cq)
-        )
-        out[5] = (
-            s
-            * b_m
-            * (
-                qbar * (a.C_n_0 + a.C_n_beta * beta + a.C_n_delta_a * da + a.C_n_delta_r * dr)
-                + qv * (a.C_n_p * bp + a.C_n_r * br)
-            )
-        )
+            kernels.forces_moments_batch(x2, u2, self._k, out.reshape(6, n))
+        else:
+            kernels.uncompiled.forces_moments(x, u, self._k, out)
+        return out
 
     # -----------------------------------------------------------------------------------------
     # process model
@@ -558,70 +337,14 @@ class AeroModel:
         x = np.asarray(x, dtype=float)
         u = np.asarray(u, dtype=float)
         out = np.empty(x.shape, dtype=float)
-        if self._kernel is not None:
-            module, consts = self._kernel
+        if self.uses_numba:
             n = x[0].size
             x2, u2, v2 = self._flat(x, u, v, n)
-            module.derivatives_batch(x2, u2, v2, consts, out.reshape(x.shape[0], n))
-            return out
-        self._derivatives(x, u, v, out)
+            kernels.derivatives_batch(x2, u2, v2, self._k, out.reshape(x.shape[0], n))
+        else:
+            fm = np.empty((6, *x.shape[1:]))
+            kernels.uncompiled.derivatives(x, u, self._rows(x, v), self._k, fm, out)
         return out
-
-    def _derivatives(
-        self, x: np.ndarray, u: np.ndarray, v: np.ndarray | None, out: np.ndarray
-    ) -> None:
-        c = self._c
-        uu, vv, ww = x[3], x[4], x[5]
-        phi, theta, psi = x[6], x[7], x[8]
-        p, q, r = x[9], x[10], x[11]
-        sph, cph = np.sin(phi), np.cos(phi)
-        sth, cth = np.sin(theta), np.cos(theta)
-        sps, cps = np.sin(psi), np.cos(psi)
-
-        # eq. (3.14): NED position rates, R_nb = Rz(psi) Ry(theta) Rx(phi) times body velocity
-        sph_sth = sph * sth
-        cph_sth = cph * sth
-        out[0] = (
-            cth * cps * uu + (sph_sth * cps - cph * sps) * vv + (cph_sth * cps + sph * sps) * ww
-        )
-        out[1] = (
-            cth * sps * uu + (sph_sth * sps + cph * cps) * vv + (cph_sth * sps - sph * cps) * ww
-        )
-        out[2] = -sth * uu + sph * cth * vv + cph * cth * ww
-
-        # forces and moments into rows 3..8 of out, used as scratch before being overwritten
-        fm = out[3:9]
-        self._forces_moments(x, u, fm)
-        fx, fy, fz, ell, em, en = fm[0], fm[1], fm[2], fm[3], fm[4], fm[5]
-
-        # eq. (3.15) with gravity in body axes (eq. 4.3); flat earth, normal gravity at height
-        grav = c["g0"] + c["dg"] * x[2]
-        inv_m = c["inv_mass"]
-        u_dot = r * vv - q * ww + fx * inv_m - grav * sth
-        v_dot = p * ww - r * uu + fy * inv_m + grav * cth * sph
-        w_dot = q * uu - p * vv + fz * inv_m + grav * cth * cph
-        # eq. (3.17)
-        p_dot = c["G1"] * p * q - c["G2"] * q * r + c["G3"] * ell + c["G4"] * en
-        q_dot = c["G5"] * p * r - c["G6"] * (p * p - r * r) + c["inv_jy"] * em
-        r_dot = c["G7"] * p * q - c["G1"] * q * r + c["G4"] * ell + c["G8"] * en
-
-        out[3] = u_dot
-        out[4] = v_dot
-        out[5] = w_dot
-        # eq. (3.16): Euler angle rates
-        tth = sth / cth
-        out[6] = p + (q * sph + r * cph) * tth
-        out[7] = q * cph - r * sph
-        out[8] = (q * sph + r * cph) / cth
-        out[9] = p_dot
-        out[10] = q_dot
-        out[11] = r_dot
-        if v is not None:
-            v = np.asarray(v, dtype=float)
-            if v.ndim == 1 and x.ndim > 1:
-                v = v.reshape((6,) + (1,) * (x.ndim - 1))
-            out[3:6] += v[0:3]
-            out[9:12] += v[3:6]
 
     def step(
         self, t_s: float, x: np.ndarray, u: np.ndarray, v: np.ndarray | None = None
@@ -646,36 +369,15 @@ class AeroModel:
         """
         x = np.asarray(x, dtype=float)
         u = np.asarray(u, dtype=float)
-        if self._kernel is not None:
-            module, consts = self._kernel
+        out = np.empty(x.shape, dtype=float)
+        if self.uses_numba:
             n = x[0].size
             x2, u2, v2 = self._flat(x, u, v, n)
-            out = np.empty(x.shape, dtype=float)
-            module.step_batch(x2, u2, v2, consts, self.dt_s, out.reshape(x.shape[0], n))
-            return out
-        h = self.dt_s
-        k = np.empty(x.shape, dtype=float)
-        acc = np.empty(x.shape, dtype=float)
-        xt = np.empty(x.shape, dtype=float)
-        self._derivatives(x, u, v, k)  # k1
-        acc[...] = k
-        np.multiply(k, 0.5 * h, out=xt)
-        xt += x
-        self._derivatives(xt, u, v, k)  # k2
-        acc += 2.0 * k
-        np.multiply(k, 0.5 * h, out=xt)
-        xt += x
-        self._derivatives(xt, u, v, k)  # k3
-        acc += 2.0 * k
-        np.multiply(k, h, out=xt)
-        xt += x
-        self._derivatives(xt, u, v, k)  # k4
-        acc += k
-        acc *= h / 6.0
-        acc += x
-        acc[6] = _wrap_pi(acc[6])
-        acc[8] = _wrap_pi(acc[8])
-        return acc
+            kernels.step_batch(x2, u2, v2, self._k, self.dt_s, out.reshape(x.shape[0], n))
+        else:
+            scratch = [np.empty(x.shape) for _ in range(3)] + [np.empty((6, *x.shape[1:]))]
+            kernels.uncompiled.rk4_step(x, u, self._rows(x, v), self._k, self.dt_s, *scratch, out)
+        return out
 
     # -----------------------------------------------------------------------------------------
     # outputs
@@ -694,35 +396,13 @@ class AeroModel:
         """
         x = np.asarray(x, dtype=float)
         u = np.asarray(u, dtype=float)
-        c = self._c
         out = np.empty((6, *x.shape[1:]), dtype=float)
-        if self._kernel is not None:
-            module, consts = self._kernel
+        if self.uses_numba:
             n = x[0].size
             x2, u2 = self._flat_xu(x, u, n)
-            module.imu_batch(x2, u2, consts, out.reshape(6, n))
-            return out
-        self._forces_moments(x, u, out)
-        lever = c["imu_lever"]
-        p, q, r = x[9], x[10], x[11]
-        if lever is not None:
-            ell, em, en = out[3].copy(), out[4].copy(), out[5].copy()
-            p_dot = c["G1"] * p * q - c["G2"] * q * r + c["G3"] * ell + c["G4"] * en
-            q_dot = c["G5"] * p * r - c["G6"] * (p * p - r * r) + c["inv_jy"] * em
-            r_dot = c["G7"] * p * q - c["G1"] * q * r + c["G4"] * ell + c["G8"] * en
-        out[0:3] *= c["inv_mass"]
-        if lever is not None:
-            rx, ry, rz = lever
-            # omega x r and omega_dot x r
-            wr_x = q * rz - r * ry
-            wr_y = r * rx - p * rz
-            wr_z = p * ry - q * rx
-            out[0] += (q_dot * rz - r_dot * ry) + (q * wr_z - r * wr_y)
-            out[1] += (r_dot * rx - p_dot * rz) + (r * wr_x - p * wr_z)
-            out[2] += (p_dot * ry - q_dot * rx) + (p * wr_y - q * wr_x)
-        out[3] = p
-        out[4] = q
-        out[5] = r
+            kernels.imu_batch(x2, u2, self._k, out.reshape(6, n))
+        else:
+            kernels.uncompiled.imu(x, u, self._k, np.empty((6, *x.shape[1:])), out)
         return out
 
     def gps(self, t_s: float, x: np.ndarray, u: np.ndarray) -> np.ndarray:
@@ -732,21 +412,8 @@ class AeroModel:
         ``(-pi, pi]`` (no wind, so the ground velocity is the air velocity rotated to NED).
         """
         x = np.asarray(x, dtype=float)
-        uu, vv, ww = x[3], x[4], x[5]
-        sph, cph = np.sin(x[6]), np.cos(x[6])
-        sth, cth = np.sin(x[7]), np.cos(x[7])
-        sps, cps = np.sin(x[8]), np.cos(x[8])
-        # eq. (3.14)
-        v_n = (
-            cth * cps * uu + (sph * sth * cps - cph * sps) * vv + (cph * sth * cps + sph * sps) * ww
-        )
-        v_e = (
-            cth * sps * uu + (sph * sth * sps + cph * cps) * vv + (cph * sth * sps - sph * cps) * ww
-        )
         out = np.empty((5, *x.shape[1:]), dtype=float)
-        out[0:3] = x[0:3]
-        out[3] = np.hypot(v_n, v_e)
-        out[4] = np.arctan2(v_e, v_n)
+        kernels.uncompiled.gps(x, out)  # uncompiled, over whole rows: off the hot path
         return out
 
     # -----------------------------------------------------------------------------------------
