@@ -39,7 +39,15 @@ import sys
 from pathlib import Path
 from xml.etree import ElementTree
 
-from immukf_sitl.models.params import AircraftParams, load_aircraft_params
+from immukf_sitl.models.params import (
+    Actuators,
+    AeroCoefficients,
+    AircraftParams,
+    Geometry,
+    MassProperties,
+    Propulsion,
+    load_aircraft_params,
+)
 
 __all__ = ["AIRCRAFT_NAME", "aircraft_xml_path", "render_aircraft_xml", "main"]
 
@@ -98,164 +106,159 @@ def _coefficient_term(name: str, description: str, factors: list[str], indent: s
     return _function(name, _op("product", *factors), description, indent)
 
 
-def _aerodynamics(params: AircraftParams) -> str:
-    a = params.aero
-    ind = "    "
-    out: list[str] = ["  <aerodynamics>\n"]
+#: An additive term of an aerodynamic axis: property name, description, factors of the product.
+_Term = tuple[str, str, list[str]]
 
-    # Helper functions (pre-functions: evaluated before the axes, after FGAuxiliary has
-    # computed this step's alpha, airspeed and density).
+# JSBSim properties the aerodynamic terms multiply.
+_ALPHA = _prop("aero/alpha-rad")
+_BETA = _prop("aero/beta-rad")
+_QS = [_prop("aero/qbar-psf"), _prop("metrics/Sw-sqft")]  # forces: qbar S
+_QSB = _QS + [_prop("metrics/bw-ft")]  # rolling and yawing moments: qbar S b
+_QSC = _QS + [_prop("metrics/cbarw-ft")]  # pitching moment: qbar S c
+_P_HAT = [_prop("aero/bi2vel"), _prop("velocities/p-aero-rad_sec")]  # b p / (2 Va)
+_Q_HAT = [_prop("aero/ci2vel"), _prop("velocities/q-aero-rad_sec")]  # c q / (2 Va)
+_R_HAT = [_prop("aero/bi2vel"), _prop("velocities/r-aero-rad_sec")]  # b r / (2 Va)
+_DE = _prop("fcs/delta-e-rad")
+_DA = _prop("fcs/delta-a-rad")
+_DR = _prop("fcs/delta-r-rad")
+# Propeller functions' own properties, in SI units.
+_RHO_SI = _prop("propeller/rho-kgm3")
+_VA_SI = _prop("propeller/va-mps")
+_OMEGA = _prop("propeller/omega-radps")
+_TWO_PI = 2.0 * math.pi
+
+
+def _axis(name: str, frame: str | None, terms: list[_Term]) -> str:
+    """An ``<axis>`` of the aerodynamics: the sum of its terms."""
+    frame_attr = f' frame="{frame}"' if frame else ""
+    text = f'    <axis name="{name}"{frame_attr}>\n'
+    for term_name, description, factors in terms:
+        text += _coefficient_term(term_name, description, factors, "      ")
+    return text + "    </axis>\n"
+
+
+def _pitch_plane_terms(
+    path: str, label: str, scale: list[str], c_q: float, c_delta_e: float
+) -> list[_Term]:
+    """The ``q`` and ``delta_e`` terms of drag, lift or pitching moment (B&M ch. 4)."""
+    return [
+        (f"{path}-q", f"{label}q c q / (2 Va)", scale + [_val(c_q)] + _Q_HAT),
+        (f"{path}-de", f"{label}de delta_e", scale + [_val(c_delta_e), _DE]),
+    ]
+
+
+def _lateral_terms(path: str, label: str, scale: list[str], c: tuple[float, ...]) -> list[_Term]:
+    """The six terms of side force, rolling or yawing moment (B&M eqs. 4.14, 4.19).
+
+    ``c`` holds the coefficients ``0, beta, p, r, delta_a, delta_r`` in that order.
+    """
+    c_0, c_beta, c_p, c_r, c_delta_a, c_delta_r = c
+    return [
+        (f"{path}-0", f"{label}0", scale + [_val(c_0)]),
+        (f"{path}-beta", f"{label}beta beta", scale + [_val(c_beta), _BETA]),
+        (f"{path}-p", f"{label}p b p / (2 Va)", scale + [_val(c_p)] + _P_HAT),
+        (f"{path}-r", f"{label}r b r / (2 Va)", scale + [_val(c_r)] + _R_HAT),
+        (f"{path}-da", f"{label}da delta_a", scale + [_val(c_delta_a), _DA]),
+        (f"{path}-dr", f"{label}dr delta_r", scale + [_val(c_delta_r), _DR]),
+    ]
+
+
+def _lateral_coefficients(aero: AeroCoefficients, prefix: str) -> tuple[float, ...]:
+    """``C_<axis>_0, _beta, _p, _r, _delta_a, _delta_r`` of one lateral axis."""
+    suffixes = ("0", "beta", "p", "r", "delta_a", "delta_r")
+    return tuple(getattr(aero, f"{prefix}_{s}") for s in suffixes)
+
+
+def _lift_functions(a: AeroCoefficients, ind: str) -> str:
+    """Stall blend sigma(alpha) and the static lift coefficient, as JSBSim pre-functions.
+
+    Pre-functions are evaluated before the axes, after FGAuxiliary has computed this step's
+    alpha, airspeed and density.
+    """
     m_blend, alpha0 = a.M, a.alpha0_rad
-    e_minus = _op(
-        "exp",
-        _op("product", _val(-m_blend), _op("difference", _prop("aero/alpha-rad"), _val(alpha0))),
-    )
-    e_plus = _op(
-        "exp", _op("product", _val(m_blend), _op("sum", _prop("aero/alpha-rad"), _val(alpha0)))
-    )
+    e_minus = _op("exp", _op("product", _val(-m_blend), _op("difference", _ALPHA, _val(alpha0))))
+    e_plus = _op("exp", _op("product", _val(m_blend), _op("sum", _ALPHA, _val(alpha0))))
     sigma = _op(
         "quotient",
         _op("sum", _val(1.0), e_minus, e_plus),
         _op("product", _op("sum", _val(1.0), e_minus), _op("sum", _val(1.0), e_plus)),
     )
-    out.append(
-        _function(
-            "aero/stall-blend",
-            sigma,
-            "B&amp;M eq. (4.10): sigma(alpha), 0 attached flow, 1 flat plate",
-            ind,
-        )
-    )
     # C_L(alpha) = (1 - sigma)(C_L0 + C_La alpha) + sigma 2 sign(alpha) sin^2(alpha) cos(alpha)
-    linear = _op("sum", _val(a.C_L_0), _op("product", _val(a.C_L_alpha), _prop("aero/alpha-rad")))
+    linear = _op("sum", _val(a.C_L_0), _op("product", _val(a.C_L_alpha), _ALPHA))
     flat_plate = _op(
         "product",
         _val(2.0),
-        _op("sign", _prop("aero/alpha-rad")),
-        _op("pow", _op("sin", _prop("aero/alpha-rad")), _val(2.0)),
-        _op("cos", _prop("aero/alpha-rad")),
+        _op("sign", _ALPHA),
+        _op("pow", _op("sin", _ALPHA), _val(2.0)),
+        _op("cos", _ALPHA),
     )
     cl_alpha = _op(
         "sum",
         _op("product", _op("difference", _val(1.0), _prop("aero/stall-blend")), linear),
         _op("product", _prop("aero/stall-blend"), flat_plate),
     )
-    out.append(
-        _function(
-            "aero/CL-alpha",
-            cl_alpha,
-            "B&amp;M eq. (4.9): lift coefficient of alpha with stall blending",
-            ind,
-        )
+    return _function(
+        "aero/stall-blend",
+        sigma,
+        "B&amp;M eq. (4.10): sigma(alpha), 0 attached flow, 1 flat plate",
+        ind,
+    ) + _function(
+        "aero/CL-alpha",
+        cl_alpha,
+        "B&amp;M eq. (4.9): lift coefficient of alpha with stall blending",
+        ind,
     )
-    out.append(_propeller_functions(params, ind))
 
-    qs = [_prop("aero/qbar-psf"), _prop("metrics/Sw-sqft")]
-    qsb = qs + [_prop("metrics/bw-ft")]
-    qsc = qs + [_prop("metrics/cbarw-ft")]
-    alpha, beta = _prop("aero/alpha-rad"), _prop("aero/beta-rad")
-    p_hat = [_prop("aero/bi2vel"), _prop("velocities/p-aero-rad_sec")]
-    q_hat = [_prop("aero/ci2vel"), _prop("velocities/q-aero-rad_sec")]
-    r_hat = [_prop("aero/bi2vel"), _prop("velocities/r-aero-rad_sec")]
-    de, da, dr = _prop("fcs/delta-e-rad"), _prop("fcs/delta-a-rad"), _prop("fcs/delta-r-rad")
 
-    def axis(name: str, frame: str | None, terms: list[tuple[str, str, list[str]]]) -> str:
-        frame_attr = f' frame="{frame}"' if frame else ""
-        text = f'    <axis name="{name}"{frame_attr}>\n'
-        for term_name, description, factors in terms:
-            text += _coefficient_term(term_name, description, factors, "      ")
-        return text + "    </axis>\n"
-
+def _aerodynamics(params: AircraftParams) -> str:
+    """The ``<aerodynamics>`` section: pre-functions, then the six axes."""
+    a = params.aero
+    drag_basic = _op("sum", _val(a.C_D_0), _op("product", _val(a.C_D_alpha), _ALPHA))
     # Stability axes: X is drag (positive aft), Y side force (body y), Z lift (positive up).
-    out.append(
-        axis(
+    axes = [
+        _axis(
             "X",
             "STABILITY",
-            [
-                (
-                    "aero/force/drag-basic",
-                    "C_D0 + C_Dalpha alpha (linear)",
-                    qs + [_op("sum", _val(a.C_D_0), _op("product", _val(a.C_D_alpha), alpha))],
-                ),
-                ("aero/force/drag-q", "C_Dq c q / (2 Va)", qs + [_val(a.C_D_q)] + q_hat),
-                ("aero/force/drag-de", "C_Dde delta_e", qs + [_val(a.C_D_delta_e), de]),
-            ],
-        )
-    )
-    out.append(
-        axis(
+            [("aero/force/drag-basic", "C_D0 + C_Dalpha alpha (linear)", _QS + [drag_basic])]
+            + _pitch_plane_terms("aero/force/drag", "C_D", _QS, a.C_D_q, a.C_D_delta_e),
+        ),
+        _axis(
             "Y",
             "STABILITY",
-            [
-                ("aero/force/side-0", "C_Y0", qs + [_val(a.C_Y_0)]),
-                ("aero/force/side-beta", "C_Ybeta beta", qs + [_val(a.C_Y_beta), beta]),
-                ("aero/force/side-p", "C_Yp b p / (2 Va)", qs + [_val(a.C_Y_p)] + p_hat),
-                ("aero/force/side-r", "C_Yr b r / (2 Va)", qs + [_val(a.C_Y_r)] + r_hat),
-                ("aero/force/side-da", "C_Yda delta_a", qs + [_val(a.C_Y_delta_a), da]),
-                ("aero/force/side-dr", "C_Ydr delta_r", qs + [_val(a.C_Y_delta_r), dr]),
-            ],
-        )
-    )
-    out.append(
-        axis(
+            _lateral_terms("aero/force/side", "C_Y", _QS, _lateral_coefficients(a, "C_Y")),
+        ),
+        _axis(
             "Z",
             "STABILITY",
-            [
-                (
-                    "aero/force/lift-alpha",
-                    "C_L(alpha), stall blended",
-                    qs + [_prop("aero/CL-alpha")],
-                ),
-                ("aero/force/lift-q", "C_Lq c q / (2 Va)", qs + [_val(a.C_L_q)] + q_hat),
-                ("aero/force/lift-de", "C_Lde delta_e", qs + [_val(a.C_L_delta_e), de]),
-            ],
-        )
-    )
-    out.append(
-        axis(
+            [("aero/force/lift-alpha", "C_L(alpha), stall blended", _QS + [_prop("aero/CL-alpha")])]
+            + _pitch_plane_terms("aero/force/lift", "C_L", _QS, a.C_L_q, a.C_L_delta_e),
+        ),
+        _axis(
             "ROLL",
             None,
-            [
-                ("aero/moment/roll-0", "C_l0", qsb + [_val(a.C_ell_0)]),
-                ("aero/moment/roll-beta", "C_lbeta beta", qsb + [_val(a.C_ell_beta), beta]),
-                ("aero/moment/roll-p", "C_lp b p / (2 Va)", qsb + [_val(a.C_ell_p)] + p_hat),
-                ("aero/moment/roll-r", "C_lr b r / (2 Va)", qsb + [_val(a.C_ell_r)] + r_hat),
-                ("aero/moment/roll-da", "C_lda delta_a", qsb + [_val(a.C_ell_delta_a), da]),
-                ("aero/moment/roll-dr", "C_ldr delta_r", qsb + [_val(a.C_ell_delta_r), dr]),
-            ],
-        )
-    )
-    out.append(
-        axis(
+            _lateral_terms("aero/moment/roll", "C_l", _QSB, _lateral_coefficients(a, "C_ell")),
+        ),
+        _axis(
             "PITCH",
             None,
             [
-                ("aero/moment/pitch-0", "C_m0", qsc + [_val(a.C_m_0)]),
-                ("aero/moment/pitch-alpha", "C_malpha alpha", qsc + [_val(a.C_m_alpha), alpha]),
-                ("aero/moment/pitch-q", "C_mq c q / (2 Va)", qsc + [_val(a.C_m_q)] + q_hat),
-                ("aero/moment/pitch-de", "C_mde delta_e", qsc + [_val(a.C_m_delta_e), de]),
-            ],
-        )
-    )
-    out.append(
-        axis(
+                ("aero/moment/pitch-0", "C_m0", _QSC + [_val(a.C_m_0)]),
+                ("aero/moment/pitch-alpha", "C_malpha alpha", _QSC + [_val(a.C_m_alpha), _ALPHA]),
+            ]
+            + _pitch_plane_terms("aero/moment/pitch", "C_m", _QSC, a.C_m_q, a.C_m_delta_e),
+        ),
+        _axis(
             "YAW",
             None,
-            [
-                ("aero/moment/yaw-0", "C_n0", qsb + [_val(a.C_n_0)]),
-                ("aero/moment/yaw-beta", "C_nbeta beta", qsb + [_val(a.C_n_beta), beta]),
-                ("aero/moment/yaw-p", "C_np b p / (2 Va)", qsb + [_val(a.C_n_p)] + p_hat),
-                ("aero/moment/yaw-r", "C_nr b r / (2 Va)", qsb + [_val(a.C_n_r)] + r_hat),
-                ("aero/moment/yaw-da", "C_nda delta_a", qsb + [_val(a.C_n_delta_a), da]),
-                ("aero/moment/yaw-dr", "C_ndr delta_r", qsb + [_val(a.C_n_delta_r), dr]),
-            ],
-        )
-    )
-    out.append("  </aerodynamics>\n")
-    return "".join(out)
+            _lateral_terms("aero/moment/yaw", "C_n", _QSB, _lateral_coefficients(a, "C_n")),
+        ),
+    ]
+    ind = "    "
+    prefunctions = _lift_functions(a, ind) + _propeller_functions(params.propulsion, ind)
+    return "  <aerodynamics>\n" + prefunctions + "".join(axes) + "  </aerodynamics>\n"
 
 
-def _propeller_functions(params: AircraftParams, ind: str) -> str:
+def _propeller_functions(pr: Propulsion, ind: str) -> str:
     """DC motor + propeller of the B&M supplement, ch. 4, as JSBSim pre-functions (SI inside).
 
     Omega is the positive root of the motor-propeller torque balance
@@ -265,47 +268,36 @@ def _propeller_functions(params: AircraftParams, ind: str) -> str:
     ``T = rho D^4 C_T0 Omega^2/(2 pi)^2 + rho D^3 C_T1 Va Omega/(2 pi) + rho D^2 C_T2 Va^2`` and
     ``Q`` likewise with ``C_Q`` and one more power of ``D``.
     """
-    pr = params.propulsion
-    d = pr.prop_diameter_m
-    ct0, ct1, ct2 = pr.C_T
-    cq0, cq1, cq2 = pr.C_Q
-    kq = pr.K_Q_Nm_per_A
-    kv = pr.K_V_Vs_per_rad
-    two_pi = 2.0 * math.pi
-    rho = _prop("propeller/rho-kgm3")
-    va = _prop("propeller/va-mps")
-    omega = _prop("propeller/omega-radps")
-    text = _function(
+    inputs = _function(
         "propeller/rho-kgm3",
         _op("product", _prop("atmosphere/rho-slugs_ft3"), _val(_SLUG_FT3_TO_KG_M3)),
         "air density in kg/m^3",
         ind,
-    )
-    text += _function(
+    ) + _function(
         "propeller/va-mps",
         _op("product", _prop("velocities/vt-fps"), _val(_FT_TO_M)),
         "true airspeed in m/s",
         ind,
     )
-    a_coef = _op("product", rho, _val(d**5 * cq0 / two_pi**2))
+    return inputs + _propeller_speed_functions(pr, ind) + _propeller_load_functions(pr, ind)
+
+
+def _propeller_speed_functions(pr: Propulsion, ind: str) -> str:
+    """The torque balance's coefficients a, b, c and its positive root Omega."""
+    d = pr.prop_diameter_m
+    cq0, cq1, cq2 = pr.C_Q
+    kq = pr.K_Q_Nm_per_A
+    a_coef = _op("product", _RHO_SI, _val(d**5 * cq0 / _TWO_PI**2))
     b_coef = _op(
-        "sum", _op("product", rho, va, _val(d**4 * cq1 / two_pi)), _val(kq * kv / pr.R_motor_ohm)
+        "sum",
+        _op("product", _RHO_SI, _VA_SI, _val(d**4 * cq1 / _TWO_PI)),
+        _val(kq * pr.K_V_Vs_per_rad / pr.R_motor_ohm),
     )
     c_coef = _op(
         "sum",
-        _op("product", rho, _op("pow", va, _val(2.0)), _val(d**3 * cq2)),
+        _op("product", _RHO_SI, _op("pow", _VA_SI, _val(2.0)), _val(d**3 * cq2)),
         _op("product", _prop("fcs/delta-t"), _val(-kq * pr.V_max_V / pr.R_motor_ohm)),
         _val(kq * pr.i0_A),
-    )
-    text += _function("propeller/torque-balance-a", a_coef, "a = rho D^5 C_Q0 / (2 pi)^2", ind)
-    text += _function(
-        "propeller/torque-balance-b", b_coef, "b = rho D^4 C_Q1 Va / (2 pi) + K_Q K_V / R", ind
-    )
-    text += _function(
-        "propeller/torque-balance-c",
-        c_coef,
-        "c = rho D^3 C_Q2 Va^2 - K_Q V_max delta_t / R + K_Q i0",
-        ind,
     )
     a_p, b_p = _prop("propeller/torque-balance-a"), _prop("propeller/torque-balance-b")
     c_p = _prop("propeller/torque-balance-c")
@@ -317,45 +309,68 @@ def _propeller_functions(params: AircraftParams, ind: str) -> str:
         _op("difference", _op("pow", discriminant, _val(0.5)), b_p),
         _op("product", _val(2.0), a_p),
     )
-    text += _function(
-        "propeller/omega-radps",
-        root,
-        "propeller speed: the positive root of a Omega^2 + b Omega + c = 0",
-        ind,
-    )
-
-    def polynomial(c0: float, c1: float, c2: float, d_power: int) -> str:
-        return _op(
-            "sum",
-            _op(
-                "product",
-                rho,
-                _op("pow", omega, _val(2.0)),
-                _val(d ** (d_power + 2) * c0 / two_pi**2),
-            ),
-            _op("product", rho, va, omega, _val(d ** (d_power + 1) * c1 / two_pi)),
-            _op("product", rho, _op("pow", va, _val(2.0)), _val(d**d_power * c2)),
+    return (
+        _function("propeller/torque-balance-a", a_coef, "a = rho D^5 C_Q0 / (2 pi)^2", ind)
+        + _function(
+            "propeller/torque-balance-b", b_coef, "b = rho D^4 C_Q1 Va / (2 pi) + K_Q K_V / R", ind
         )
+        + _function(
+            "propeller/torque-balance-c",
+            c_coef,
+            "c = rho D^3 C_Q2 Va^2 - K_Q V_max delta_t / R + K_Q i0",
+            ind,
+        )
+        + _function(
+            "propeller/omega-radps",
+            root,
+            "propeller speed: the positive root of a Omega^2 + b Omega + c = 0",
+            ind,
+        )
+    )
 
-    text += _function(
-        "propeller/thrust-n", polynomial(ct0, ct1, ct2, 2), "propeller thrust in N", ind
+
+def _advance_polynomial(coefficients: tuple[float, float, float], d: float, d_power: int) -> str:
+    """``rho D^p (c0 (D Omega / 2 pi)^2 + c1 Va D Omega / 2 pi + c2 Va^2)``, p = ``d_power``."""
+    c0, c1, c2 = coefficients
+    return _op(
+        "sum",
+        _op(
+            "product",
+            _RHO_SI,
+            _op("pow", _OMEGA, _val(2.0)),
+            _val(d ** (d_power + 2) * c0 / _TWO_PI**2),
+        ),
+        _op("product", _RHO_SI, _VA_SI, _OMEGA, _val(d ** (d_power + 1) * c1 / _TWO_PI)),
+        _op("product", _RHO_SI, _op("pow", _VA_SI, _val(2.0)), _val(d**d_power * c2)),
     )
-    text += _function(
-        "propeller/torque-nm", polynomial(cq0, cq1, cq2, 3), "propeller torque in N m", ind
+
+
+def _propeller_load_functions(pr: Propulsion, ind: str) -> str:
+    """Thrust and torque from Omega, in SI and in JSBSim's pounds and feet."""
+    d = pr.prop_diameter_m
+    return (
+        _function(
+            "propeller/thrust-n", _advance_polynomial(pr.C_T, d, 2), "propeller thrust in N", ind
+        )
+        + _function(
+            "propeller/torque-nm",
+            _advance_polynomial(pr.C_Q, d, 3),
+            "propeller torque in N m",
+            ind,
+        )
+        + _function(
+            "propeller/thrust-lbs",
+            _op("product", _prop("propeller/thrust-n"), _val(_N_TO_LBF)),
+            "propeller thrust in lbf",
+            ind,
+        )
+        + _function(
+            "propeller/torque-lbsft",
+            _op("product", _prop("propeller/torque-nm"), _val(_NM_TO_LBFFT)),
+            "propeller torque in lbf ft",
+            ind,
+        )
     )
-    text += _function(
-        "propeller/thrust-lbs",
-        _op("product", _prop("propeller/thrust-n"), _val(_N_TO_LBF)),
-        "propeller thrust in lbf",
-        ind,
-    )
-    text += _function(
-        "propeller/torque-lbsft",
-        _op("product", _prop("propeller/torque-nm"), _val(_NM_TO_LBFFT)),
-        "propeller torque in lbf ft",
-        ind,
-    )
-    return text
 
 
 def _xyz(x: float, y: float, z: float) -> str:
@@ -382,23 +397,8 @@ def _surface(name: str, command: str, limit_rad: float, description: str) -> str
     )
 
 
-def render_aircraft_xml(params: AircraftParams) -> str:
-    """Render the JSBSim aircraft definition of the parameters.
-
-    Parameters
-    ----------
-    params : AircraftParams
-        The shared aircraft parameters (mass, geometry, aerodynamics, propulsion, actuators).
-
-    Returns
-    -------
-    str
-        The complete ``<fdm_config>`` document, deterministic for given parameters (floats are
-        written with ``repr`` so that they round-trip exactly).
-    """
-    m, g, act = params.mass, params.geometry, params.actuators
-    limits = (act.elevator.limit_rad, act.aileron.limit_rad, act.rudder.limit_rad)
-    parts = [
+def _header() -> list[str]:
+    return [
         '<?xml version="1.0"?>\n',
         "<!-- GENERATED by `python -m sim.aircraft_xml` from sim/aircraft/aerosonde/params.yaml:\n",
         "     do not edit; edit the parameters and regenerate (a test checks they agree). -->\n",
@@ -411,6 +411,11 @@ def render_aircraft_xml(params: AircraftParams) -> str:
         '    <reference refID="BM2012" author="R. W. Beard, T. W. McLain"\n',
         '      title="Small Unmanned Aircraft: Theory and Practice" date="2012"/>\n',
         "  </fileheader>\n",
+    ]
+
+
+def _metrics(g: Geometry) -> list[str]:
+    return [
         "  <metrics>\n",
         f'    <wingarea unit="M2">{_num(g.S_m2)}</wingarea>\n',
         f'    <wingspan unit="M">{_num(g.b_m)}</wingspan>\n',
@@ -421,6 +426,11 @@ def render_aircraft_xml(params: AircraftParams) -> str:
         f'    <location name="EYEPOINT" unit="M"> {_structural_m(g.imu_position_m)} </location>\n',
         f'    <location name="VRP" unit="M"> {_xyz(0.0, 0.0, 0.0)} </location>\n',
         "  </metrics>\n",
+    ]
+
+
+def _mass_balance(m: MassProperties) -> list[str]:
+    return [
         '  <!-- negated_crossproduct_inertia="false" with +Jxz gives the body tensor\n',
         "       [[Jx, 0, -Jxz], [0, Jy, 0], [-Jxz, 0, Jz]] of the book (DESIGN.md sec. 6). -->\n",
         '  <mass_balance negated_crossproduct_inertia="false">\n',
@@ -437,6 +447,11 @@ def render_aircraft_xml(params: AircraftParams) -> str:
         "       propeller is an external reaction. JSBSim needs both elements to load. -->\n",
         "  <ground_reactions/>\n",
         "  <propulsion/>\n",
+    ]
+
+
+def _flight_control(act: Actuators) -> list[str]:
+    return [
         '  <flight_control name="aerosonde-fcs">\n',
         "    <!-- No JSBSim engine: the throttle command is declared here and drives the\n",
         "         propeller functions of the aerodynamics section. -->\n",
@@ -445,19 +460,19 @@ def render_aircraft_xml(params: AircraftParams) -> str:
         _surface(
             "fcs/delta-e-rad",
             "fcs/elevator-cmd-norm",
-            limits[0],
+            act.elevator.limit_rad,
             "elevator, rad, positive trailing edge down (nose-down moment)",
         ),
         _surface(
             "fcs/delta-a-rad",
             "fcs/aileron-cmd-norm",
-            limits[1],
+            act.aileron.limit_rad,
             "aileron, rad, positive gives a positive (right wing down) rolling moment",
         ),
         _surface(
             "fcs/delta-r-rad",
             "fcs/rudder-cmd-norm",
-            limits[2],
+            act.rudder.limit_rad,
             "rudder, rad, positive trailing edge left (negative yawing moment)",
         ),
         '      <pure_gain name="fcs/delta-t">\n',
@@ -468,7 +483,12 @@ def render_aircraft_xml(params: AircraftParams) -> str:
         "      </pure_gain>\n",
         "    </channel>\n",
         "  </flight_control>\n",
-        _aerodynamics(params),
+    ]
+
+
+def _external_reactions(prop: Propulsion) -> list[str]:
+    """Thrust along body x at the CG and, if ``prop_torque_on_roll``, the torque's reaction."""
+    parts = [
         "  <external_reactions>\n",
         '    <force name="propeller-thrust" frame="BODY">\n',
         "      <function> <property>propeller/thrust-lbs</property> </function>\n",
@@ -476,7 +496,7 @@ def render_aircraft_xml(params: AircraftParams) -> str:
         f"      <direction> {_xyz(1.0, 0.0, 0.0)} </direction>\n",
         "    </force>\n",
     ]
-    if params.propulsion.prop_torque_on_roll:
+    if prop.prop_torque_on_roll:
         parts += [
             "    <!-- reaction torque of the propeller (spinning about +x): -Q_p about x -->\n",
             '    <moment name="propeller-torque" frame="BODY">\n',
@@ -484,7 +504,32 @@ def render_aircraft_xml(params: AircraftParams) -> str:
             f"      <direction> {_xyz(-1.0, 0.0, 0.0)} </direction>\n",
             "    </moment>\n",
         ]
-    parts += ["  </external_reactions>\n", "</fdm_config>\n"]
+    return parts + ["  </external_reactions>\n"]
+
+
+def render_aircraft_xml(params: AircraftParams) -> str:
+    """Render the JSBSim aircraft definition of the parameters.
+
+    Parameters
+    ----------
+    params : AircraftParams
+        The shared aircraft parameters (mass, geometry, aerodynamics, propulsion, actuators).
+
+    Returns
+    -------
+    str
+        The complete ``<fdm_config>`` document, deterministic for given parameters (floats are
+        written with ``repr`` so that they round-trip exactly).
+    """
+    parts = [
+        *_header(),
+        *_metrics(params.geometry),
+        *_mass_balance(params.mass),
+        *_flight_control(params.actuators),
+        _aerodynamics(params),
+        *_external_reactions(params.propulsion),
+        "</fdm_config>\n",
+    ]
     return "".join(parts)
 
 
