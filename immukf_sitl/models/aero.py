@@ -23,6 +23,9 @@ oblate earth; over a 2 km flight the direction of gravity tilts by only 2 km / 6
 position is converted to latitude/longitude with the full WGS-84 ellipsoid at the edges
 (:mod:`immukf_sitl.models.earth`). Air density is ISA at the state's altitude, as in JSBSim.
 
+The equations are written once, in :mod:`immukf_sitl.models.aero_kernels`, which numba compiles
+for the hot path; this module packs the constants, shapes the arrays and solves the trim.
+
 State, controls, noise and array layout: ``docs/conventions.md`` (state axis first).
 """
 
