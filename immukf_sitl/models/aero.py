@@ -162,7 +162,7 @@ class AeroModel:
         How :meth:`step`, :meth:`derivatives`, :meth:`forces_moments` and :meth:`imu` run the
         equations of :mod:`immukf_sitl.models.aero_kernels`: "numba" (and "auto") in compiled
         loops over the batch's columns, "numpy" uncompiled over whole rows of the batch (the
-        reference; about 20 times slower on a (12, 7, 49) batch).
+        reference; about 7 times slower on a (12, 7, 49) batch).
 
     Notes
     -----
