@@ -28,24 +28,20 @@ def write(tmp_path: Path, text: str, name: str = "bad.yaml") -> Path:
     return path
 
 
-def test_the_seven_scenarios_are_shipped_and_load():
+def test_the_shipped_scenarios_load_and_are_twins_in_still_and_real_air():
     names = {p.stem for p in SHIPPED}
-    assert names == {
-        "fault_free",
-        "x_accel_zeroed",
-        "y_accel_zeroed",
-        "z_accel_zeroed",
-        "p_gyro_zeroed",
-        "q_gyro_zeroed",
-        "r_gyro_zeroed",
-    }
+    still = {"fault_free", "x_accel_zeroed", "y_accel_zeroed", "z_accel_zeroed",
+             "p_gyro_zeroed", "q_gyro_zeroed", "r_gyro_zeroed"}  # fmt: skip
+    assert names == still | {f"{n}_windy" for n in still} | {"fault_free_windy_10min"}
     seeds = set()
     for path in SHIPPED:
         scenario = load_scenario(path)
         seeds.add(scenario.seed)
-        assert scenario.duration_s == 90.0
+        windy = path.stem.endswith(("_windy", "_10min"))
+        assert scenario.duration_s == (600.0 if path.stem.endswith("_10min") else 90.0)
+        assert scenario.wind.is_calm != windy and scenario.airframe.is_exact != windy
         assert scenario.expect is not None and scenario.expect.within_s == 1.0
-        if path.stem == "fault_free":
+        if path.stem.startswith("fault_free"):
             assert scenario.faults == () and scenario.expect.detect == "none"
             continue
         (fault,) = scenario.faults
