@@ -294,8 +294,9 @@ def build_aero_estimator(
 ) -> AircraftEstimator:
     """UKF-1 (``"ukf1"``, needs ``true_mode``), UKF-2 (``"ukf2"``) or UKF-4 (``"imm"``).
 
-    ``backend`` selects the filter's implementation (numpy reference or compiled kernels, see
-    :class:`UnscentedKalmanFilter`); the model's is chosen when ``model`` is built.
+    ``backend`` selects how the filter's kernels run (``"auto"``/``"numba"`` compiled,
+    ``"python"`` the same functions uncompiled, see :class:`UnscentedKalmanFilter`); the
+    model's is chosen when ``model`` is built.
     """
     sensors = sensors if sensors is not None else SensorSpec()
     tuning = tuning if tuning is not None else FilterTuning()
