@@ -349,6 +349,35 @@ class JsbsimDriver:
             raise JsbsimError("JSBSim run() returned false")
         return self.truth()
 
+    def _vector(self, names: tuple[str, str, str], scale: float = 1.0) -> np.ndarray:
+        """Three JSBSim properties as an array, times ``scale``."""
+        fdm = self._fdm
+        return np.array([fdm[names[0]], fdm[names[1]], fdm[names[2]]]) * scale
+
+    def _specific_force(self, rates: np.ndarray) -> np.ndarray:
+        """True specific force at the IMU (m/s^2) from this step's forces over the mass.
+
+        A lever arm adds ``omega_dot x r + omega x (omega x r)`` when the IMU is not at the CG.
+        """
+        force_n = self._vector(
+            ("forces/fbx-total-lbs", "forces/fby-total-lbs", "forces/fbz-total-lbs"), _LBF
+        )
+        specific_force = force_n / self._mass_kg
+        if np.any(self._imu_m != 0.0):
+            omega_dot = self._vector(
+                (
+                    "accelerations/pidot-rad_sec2",
+                    "accelerations/qidot-rad_sec2",
+                    "accelerations/ridot-rad_sec2",
+                )
+            )
+            specific_force = (
+                specific_force
+                + np.cross(omega_dot, self._imu_m)
+                + np.cross(rates, np.cross(rates, self._imu_m))
+            )
+        return specific_force
+
     def truth(self) -> TruthState:
         """The current true state (see :class:`TruthState`)."""
         fdm = self._fdm
@@ -357,45 +386,15 @@ class JsbsimDriver:
         alt = fdm["position/geod-alt-ft"] * _FT
         lat0, lon0, alt0 = self.origin
         north, east, down = pymap3d.geodetic2ned(lat, lon, alt, lat0, lon0, alt0)
-        rates = np.array(
-            [
-                fdm["velocities/pi-rad_sec"],
-                fdm["velocities/qi-rad_sec"],
-                fdm["velocities/ri-rad_sec"],
-            ]
+        rates = self._vector(
+            ("velocities/pi-rad_sec", "velocities/qi-rad_sec", "velocities/ri-rad_sec")
         )
-        force_n = (
-            np.array(
-                [
-                    fdm["forces/fbx-total-lbs"],
-                    fdm["forces/fby-total-lbs"],
-                    fdm["forces/fbz-total-lbs"],
-                ]
-            )
-            * _LBF
-        )
-        specific_force = force_n / self._mass_kg
-        if np.any(self._imu_m != 0.0):
-            omega_dot = np.array(
-                [
-                    fdm["accelerations/pidot-rad_sec2"],
-                    fdm["accelerations/qidot-rad_sec2"],
-                    fdm["accelerations/ridot-rad_sec2"],
-                ]
-            )
-            specific_force = (
-                specific_force
-                + np.cross(omega_dot, self._imu_m)
-                + np.cross(rates, np.cross(rates, self._imu_m))
-            )
         controls = np.array(
-            [
-                fdm["fcs/delta-e-rad"],
-                fdm["fcs/delta-a-rad"],
-                fdm["fcs/delta-r-rad"],
-                fdm["fcs/delta-t"],
-            ]
-        )
+            [fdm["fcs/delta-e-rad"], fdm["fcs/delta-a-rad"], fdm["fcs/delta-r-rad"],
+             fdm["fcs/delta-t"]]
+        )  # fmt: skip
+        euler = self._vector(("attitude/phi-rad", "attitude/theta-rad", "attitude/psi-rad"))
+        euler[2] = math.remainder(euler[2], 2.0 * math.pi)
         return TruthState(
             time_s=float(fdm["simulation/sim-time-sec"]),
             lat_deg=float(lat),
@@ -403,38 +402,30 @@ class JsbsimDriver:
             alt_m=float(alt),
             position_ned_m=_readonly([north, east, down]),
             velocity_ned_mps=_readonly(
-                [
-                    fdm["velocities/v-north-fps"] * _FT,
-                    fdm["velocities/v-east-fps"] * _FT,
-                    fdm["velocities/v-down-fps"] * _FT,
-                ]
+                self._vector(
+                    ("velocities/v-north-fps", "velocities/v-east-fps", "velocities/v-down-fps"),
+                    _FT,
+                )
             ),
             velocity_body_mps=_readonly(
-                [
-                    fdm["velocities/u-fps"] * _FT,
-                    fdm["velocities/v-fps"] * _FT,
-                    fdm["velocities/w-fps"] * _FT,
-                ]
+                self._vector(("velocities/u-fps", "velocities/v-fps", "velocities/w-fps"), _FT)
             ),
-            euler_rad=_readonly(
-                [
-                    fdm["attitude/phi-rad"],
-                    fdm["attitude/theta-rad"],
-                    math.remainder(fdm["attitude/psi-rad"], 2.0 * math.pi),
-                ]
-            ),
+            euler_rad=_readonly(euler),
             rates_body_radps=_readonly(rates),
             airspeed_mps=float(fdm["velocities/vt-fps"] * _FT),
             alpha_rad=float(fdm["aero/alpha-rad"]),
             beta_rad=float(fdm["aero/beta-rad"]),
-            specific_force_body_mps2=_readonly(specific_force),
+            specific_force_body_mps2=_readonly(self._specific_force(rates)),
             controls=_readonly(controls),
             wind_ned_mps=_readonly(
-                [
-                    fdm["atmosphere/total-wind-north-fps"] * _FT,
-                    fdm["atmosphere/total-wind-east-fps"] * _FT,
-                    fdm["atmosphere/total-wind-down-fps"] * _FT,
-                ]
+                self._vector(
+                    (
+                        "atmosphere/total-wind-north-fps",
+                        "atmosphere/total-wind-east-fps",
+                        "atmosphere/total-wind-down-fps",
+                    ),
+                    _FT,
+                )
             ),
         )
 

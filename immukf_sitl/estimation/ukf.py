@@ -37,7 +37,7 @@ from immukf_sitl.estimation.angles import angle_mask
 from immukf_sitl.estimation.diagnostics import FilterDiagnostics
 from immukf_sitl.estimation.linalg import robust_cholesky
 from immukf_sitl.estimation.models import Measurement, MeasurementModel, ProcessModel
-from immukf_sitl.estimation.sigma_points import JulierSigmaPoints, SigmaPointScheme
+from immukf_sitl.estimation.sigma_points import JulierSigmaPoints, SigmaPointScheme, SigmaWeights
 
 NoiseForm = Literal["augmented", "additive"]
 #: How the kernels run: ``"numba"`` compiled (``"auto"`` is the same), ``"python"`` interpreted.
@@ -240,16 +240,43 @@ class UnscentedKalmanFilter:
         UkfEstimate
             ``x(k+1|k+1)``, ``P(k+1|k+1)`` and the step's intermediate results, at ``t_next_s``.
         """
-        kern = self.kernels
         diag = self.diagnostics
-        proc = self.process
-        augmented = self.noise_form == "augmented"
         diag.steps += 1
         if measurement is not None and not np.isfinite(measurement.z).all():
             diag.skipped_nonfinite_measurement += 1
             measurement = None
         mean = np.ascontiguousarray(previous.mean, dtype=float)
         cov = np.ascontiguousarray(previous.cov, dtype=float)
+        batch = mean.shape[0]
+        sym, weights, x_points, pred_mean, pred_cov, x_res = self._predict(
+            previous.t_s, mean, cov, u, measurement
+        )
+        if measurement is None:
+            zero = np.zeros(batch)
+            return UkfEstimate(
+                t_next_s, pred_mean, pred_cov, pred_mean, pred_cov, None, None, zero, zero, False
+            )
+        return self._update(
+            t_next_s, u, measurement, mean, sym, weights, x_points, pred_mean, pred_cov, x_res
+        )
+
+    def _predict(
+        self,
+        t_s: float,
+        mean: np.ndarray,
+        cov: np.ndarray,
+        u: np.ndarray,
+        measurement: Measurement | None,
+    ) -> tuple[np.ndarray, SigmaWeights, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Eqs. (9)-(18): sigma points of ``x(k|k)`` through ``f``; their mean and covariance.
+
+        Returns the symmetrised ``P(k|k)``, the weights, the propagated points, ``x(k+1|k)``,
+        ``P(k+1|k)`` and the points' residuals about it.
+        """
+        kern = self.kernels
+        diag = self.diagnostics
+        proc = self.process
+        augmented = self.noise_form == "augmented"
         batch, nx = mean.shape
 
         # P(k|k) symmetrised and factored; a factor the kernel doubts goes to the repairs
@@ -268,14 +295,14 @@ class UnscentedKalmanFilter:
             kern.augmented_process_points(
                 mean, chol, proc.noise_sqrt, weights.spread, x_distinct, v_distinct
             )  # eqs. (9)-(11), (13)
-            moved = proc.f(previous.t_s, x_distinct, u, v_distinct)  # eq. (14)
+            moved = proc.f(t_s, x_distinct, u, v_distinct)  # eq. (14)
             source = _process_column_source(nx + nv, n_aug)
             added_cov = _zeros(nx)
         else:
             weights = self.scheme.weights(nx)
             points = np.empty((nx, batch, 2 * nx + 1))
             kern.state_points(mean, chol, weights.spread, points)  # eq. (11)
-            moved = proc.f(previous.t_s, points, u, None)  # eq. (14)
+            moved = proc.f(t_s, points, u, None)  # eq. (14)
             source = _identity_source(2 * nx + 1)
             added_cov = proc.additive_noise_cov
         n_sigma = source.size
@@ -291,12 +318,27 @@ class UnscentedKalmanFilter:
         # P(k+1|k) is symmetric by construction; counted as symmetrised (twice in the additive
         # form: the transformed covariance and the sum with Q)
         diag.symmetrised += batch if augmented else 2 * batch
-        if measurement is None:
-            zero = np.zeros(batch)
-            return UkfEstimate(
-                t_next_s, pred_mean, pred_cov, pred_mean, pred_cov, None, None, zero, zero, False
-            )
+        return sym, weights, x_points, pred_mean, pred_cov, x_res
 
+    def _update(
+        self,
+        t_next_s: float,
+        u: np.ndarray,
+        measurement: Measurement,
+        mean: np.ndarray,
+        sym: np.ndarray,
+        weights: SigmaWeights,
+        x_points: np.ndarray,
+        pred_mean: np.ndarray,
+        pred_cov: np.ndarray,
+        x_res: np.ndarray,
+    ) -> UkfEstimate:
+        """Eqs. (15), (17), (19)-(25): the measurement update and the likelihood."""
+        kern = self.kernels
+        diag = self.diagnostics
+        proc = self.process
+        augmented = self.noise_form == "augmented"
+        batch, nx = pred_mean.shape
         model = measurement.model
         z_angle, added_r = self._output_constants_of(model)
         if augmented:

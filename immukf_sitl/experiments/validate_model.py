@@ -34,8 +34,8 @@ import numpy as np
 
 from immukf_sitl.models.aero import AeroModel
 from immukf_sitl.models.earth import NedOrigin
-from immukf_sitl.models.params import load_aircraft_params
-from sim.flight import Flight
+from immukf_sitl.models.params import AircraftParams, load_aircraft_params
+from sim.flight import Flight, FlightRecord
 from sim.flight_plans import default_flight_plan
 
 __all__ = ["register", "validate_model"]
@@ -62,6 +62,18 @@ def _errors(error: np.ndarray, signal: np.ndarray, labels: tuple[str, ...]) -> d
 
 def _wrap(angle: np.ndarray) -> np.ndarray:
     return np.remainder(angle + np.pi, 2.0 * np.pi) - np.pi
+
+
+def _fly(
+    duration_s: float, seed: int, params: AircraftParams
+) -> tuple[Flight, list[FlightRecord], float]:
+    """The manoeuvring plan in JSBSim: the flight, its records and the wall time it took."""
+    flight = Flight(default_flight_plan(), seed, params=params)
+    wall = time.perf_counter()
+    records = [flight.start()]
+    for _ in range(int(round(duration_s / flight.driver.dt_s))):
+        records.append(flight.step())
+    return flight, records, time.perf_counter() - wall
 
 
 def validate_model(
@@ -99,15 +111,8 @@ def validate_model(
         raise ValueError(f"duration_s: expected at least 1 s, got {duration_s}")
     truth_params = load_aircraft_params()
     model_params = truth_params if params_path is None else load_aircraft_params(params_path)
-
-    flight = Flight(default_flight_plan(), seed, params=truth_params)
-    wall = time.perf_counter()
-    records = [flight.start()]
-    steps = int(round(duration_s / flight.driver.dt_s))
-    for _ in range(steps):
-        records.append(flight.step())
-    flight_wall_s = time.perf_counter() - wall
-
+    flight, records, flight_wall_s = _fly(duration_s, seed, truth_params)
+    steps = len(records) - 1
     dt = flight.driver.dt_s
     lat0, lon0, alt0 = flight.origin
     model = AeroModel(model_params, origin=NedOrigin(lat0, lon0, alt0), dt_s=dt)
