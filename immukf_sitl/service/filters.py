@@ -143,7 +143,8 @@ class VariantEstimate:
     controls : ndarray, shape (4,)
         Deflections acting from ``t_s`` (the aerodynamic model flies the next step on them).
     imu : ndarray, shape (6,)
-        The last finite IMU sample (the INS integrates it over the next step).
+        The IMU sample at ``t_s``; the INS keeps the last finite one, which it integrates over
+        the next step.
     """
 
     t_s: float
@@ -258,10 +259,9 @@ class AircraftEstimator(_Bank):
         else:
             z = Measurement(np.concatenate([imu, gps]), self.imu_gps_model)
         controls = np.asarray(controls, dtype=float)
-        pair = np.stack([previous.controls, controls])
+        pair = np.array([previous.controls, controls])  # u(k), u(k+1)
         bank = self.imm.step(previous.filter, t_next_s, pair, z)
-        last_imu = imu if np.all(np.isfinite(imu)) else previous.imu
-        return VariantEstimate(t_next_s, bank, controls, np.array(last_imu, dtype=float))
+        return VariantEstimate(t_next_s, bank, controls, imu)  # the IMU drives nothing here
 
     def navigation(self, estimate: VariantEstimate) -> NavSolution:
         """The combined estimate as a navigation solution."""
