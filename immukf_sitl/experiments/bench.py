@@ -24,6 +24,7 @@ from immukf_sitl.models.aero import AeroModel
 from immukf_sitl.models.earth import NedOrigin
 from immukf_sitl.models.params import load_aircraft_params
 from immukf_sitl.models.sensors import SensorSpec
+from immukf_sitl.options import add_json_argument
 from immukf_sitl.service.filters import Observation, build_aero_estimator
 
 GPS_EVERY_STEPS = 100
@@ -219,7 +220,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "percentiles in microseconds and the real-time margin at 100 Hz."
         ),
     )
-    parser.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    add_json_argument(parser, "the results")
     parser.add_argument(
         "--steps", type=int, default=2000, help="IMM steps to time per form (default 2000)"
     )

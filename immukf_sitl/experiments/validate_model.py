@@ -35,6 +35,7 @@ import numpy as np
 from immukf_sitl.models.aero import AeroModel
 from immukf_sitl.models.earth import NedOrigin
 from immukf_sitl.models.params import AircraftParams, load_aircraft_params
+from immukf_sitl.options import add_json_argument
 from sim.flight import Flight, FlightRecord
 from sim.flight_plans import default_flight_plan
 
@@ -205,7 +206,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    parser.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    add_json_argument(parser, "the results")
     parser.add_argument(
         "--duration", type=float, default=60.0, help="simulated seconds (default 60)"
     )
