@@ -9,7 +9,8 @@ across every sub-command:
   ``serve`` may repeat ``--out`` (one per ground station);
 - ``--out-dir DIR``: a directory the command writes its results into;
 - ``--tlog FILE``: a tlog the command records into;
-- ``--json``: one JSON object on stdout, everything for people on stderr.
+- ``--json``: one JSON object on stdout, everything for people on stderr;
+- ``--signing-key FILE``: MAVLink 2 signing with the 32-byte key in FILE (64 hex characters).
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ __all__ = [
     "RunOptions",
     "add_json_argument",
     "add_link_arguments",
+    "add_signing_argument",
     "add_tlog_argument",
 ]
 
@@ -48,6 +50,17 @@ def add_json_argument(parser: argparse.ArgumentParser, what: str = "the summary"
 def add_tlog_argument(parser: argparse.ArgumentParser, what: str) -> None:
     """``--tlog FILE``: record ``what`` into a tlog."""
     parser.add_argument("--tlog", metavar="FILE", default=None, help=f"record {what} to FILE")
+
+
+def add_signing_argument(parser: argparse.ArgumentParser) -> None:
+    """``--signing-key FILE`` (dest ``signing_key``): MAVLink 2 signing on the links."""
+    parser.add_argument(
+        "--signing-key",
+        metavar="FILE",
+        default=None,
+        help="sign everything sent and accept only correctly signed MAVLink 2 input, with the "
+        "32-byte key held in FILE as 64 hex characters (README 'Security'; default: no signing)",
+    )
 
 
 def add_link_arguments(

@@ -9,6 +9,15 @@ sample's time: the lock-step acknowledgement the sim waits for.
 It never crashes on what arrives: bad CRCs, malformed or non-finite fields, out-of-order or
 duplicate samples, gaps and a ground station's own traffic are counted and reported in the
 periodic stats line and in ``--json``.
+
+With ``--signing-key FILE`` it signs everything it sends (MAVLink 2 signing, pymavlink's) and
+uses only correctly signed frames from its input; unsigned frames, wrong signatures and replays
+are counted (:mod:`immukf_sitl.mavlink.signing`) and never reach the filter.
+
+Each UDP datagram is read with its kernel receive time and parsed on its own (a truncated frame
+never swallows the next datagram). The lag is the time from the arrival of a HIGHRES_IMU
+datagram at the socket (queueing included) to the moment the ATTITUDE computed from it has left,
+for every sample that publishes one.
 """
 
 from __future__ import annotations
@@ -25,23 +34,30 @@ from collections import Counter, deque
 from dataclasses import dataclass, field
 from typing import TextIO
 
+import numpy as np
+
 from immukf_sitl.errors import UserError
 from immukf_sitl.mavlink import codec
 from immukf_sitl.mavlink.publish import OutputRates, Publisher, heartbeat
+from immukf_sitl.mavlink.signing import LinkSigning, load_key
 from immukf_sitl.mavlink.tlog import TlogWriter
 from immukf_sitl.mavlink.wire import (
     ESTIMATOR_COMPONENT_ID,
+    ESTIMATOR_LINK_ID,
     ESTIMATOR_SYSTEM_ID,
     ConnectionError_,
+    DatagramReader,
     MavConnection,
     MavMessage,
     connect,
+    is_udp,
     mavlink,
 )
 from immukf_sitl.options import (
     FilterOptions,
     add_json_argument,
     add_link_arguments,
+    add_signing_argument,
     add_tlog_argument,
 )
 from immukf_sitl.service.pipeline import EstimateOutput, EstimatorPipeline
@@ -61,9 +77,113 @@ example:
   immukf-sitl serve --in udpin:127.0.0.1:14561 --out udpout:127.0.0.1:14550
 """
 
+_ATTITUDE_ID = mavlink.MAVLINK_MSG_ID_ATTITUDE
 DEFAULT_IN = "udpin:127.0.0.1:14561"
 DEFAULT_OUT = "udpout:127.0.0.1:14550"
 STATS_WINDOW = 20_000
+#: Lags kept for the statistics: 10 minutes of ATTITUDE at its default 50 Hz.
+LAG_WINDOW = 30_000
+#: Sim time covered by each entry of ``windows`` in ``--json`` (s).
+REPORT_WINDOW_S = 600.0
+
+
+def lag_statistics(values_us: deque) -> dict[str, float | int | None]:
+    """Mean, median, p99 and max (us) and the count of a series of lags."""
+    arr = np.fromiter(values_us, float)
+    if arr.size == 0:
+        return {"mean": None, "median": None, "p99": None, "max": None, "n": 0}
+    return {
+        **TimingStats.of(arr).to_json(),
+        "max": float(arr.max()),
+        "n": int(arr.size),
+    }
+
+
+class DurationHistogram:
+    """Durations (us) counted in 1-us bins up to 100 ms: quantiles at a fixed memory cost."""
+
+    BINS = 100_000
+
+    def __init__(self) -> None:
+        self.counts = np.zeros(self.BINS, dtype=np.int64)
+        self.n = 0
+        self.max_us = 0.0
+
+    def add(self, value_us: float) -> None:
+        """Count one duration (negative ones in the first bin, beyond 100 ms in the last)."""
+        self.counts[min(max(int(value_us), 0), self.BINS - 1)] += 1
+        self.n += 1
+        self.max_us = max(self.max_us, value_us)
+
+    def clear(self) -> None:
+        """Forget everything (the memory is kept)."""
+        self.counts.fill(0)
+        self.n = 0
+        self.max_us = 0.0
+
+    def summary(self) -> dict[str, float | int | None]:
+        """Median, p99 (lower edge of their 1-us bin), max and count."""
+        if self.n == 0:
+            return {"median": None, "p99": None, "max": None, "n": 0}
+        cumulative = np.cumsum(self.counts)
+
+        def quantile(q: float) -> float:
+            return float(np.searchsorted(cumulative, q * self.n))
+
+        return {
+            "median": quantile(0.5),
+            "p99": quantile(0.99),
+            "max": round(self.max_us, 1),
+            "n": self.n,
+        }
+
+
+class SimTimeWindows:
+    """Step time and lag per window of sim time (``windows`` in ``--json``; the soak reads it).
+
+    Parameters
+    ----------
+    window_s : float
+        Sim time per window (s).
+    """
+
+    def __init__(self, window_s: float = REPORT_WINDOW_S) -> None:
+        self.window_s = float(window_s)
+        self.closed: list[dict] = []
+        self._index: int | None = None
+        self._step = DurationHistogram()
+        self._lag = DurationHistogram()
+
+    def add(self, t_s: float, step_us: float | None, lag_us: float | None) -> None:
+        """Count one IMU sample's step time and lag (None: it had none) at sim time ``t_s``."""
+        index = int(t_s // self.window_s) if math.isfinite(t_s) else -1
+        if index != self._index:
+            self._close()
+            self._index = index
+        if step_us is not None:
+            self._step.add(step_us)
+        if lag_us is not None:
+            self._lag.add(lag_us)
+
+    def _close(self) -> None:
+        if self._index is not None and (self._step.n or self._lag.n):
+            self.closed.append(self._entry())
+        self._step.clear()
+        self._lag.clear()
+
+    def _entry(self) -> dict:
+        start = (self._index or 0) * self.window_s
+        return {
+            "t_start_s": start,
+            "t_end_s": start + self.window_s,
+            "step_us": self._step.summary(),
+            "lag_us": self._lag.summary(),
+        }
+
+    def report(self) -> list[dict]:
+        """The closed windows and the current one (marked ``partial``)."""
+        current = [{**self._entry(), "partial": True}] if self._index is not None else []
+        return [*self.closed, *current]
 
 
 @dataclass
@@ -77,14 +197,14 @@ class ServiceStats:
     send_errors: int = 0
     pack_errors: int = 0
     step_us: deque = field(default_factory=lambda: deque(maxlen=STATS_WINDOW))
-    lag_us: deque = field(default_factory=lambda: deque(maxlen=STATS_WINDOW))
+    lag_us: deque = field(default_factory=lambda: deque(maxlen=LAG_WINDOW))
     events: list = field(default_factory=list)
 
     def timing(self) -> dict:
-        """Mean, median and p99 of step time and lag (us) over the recent window."""
+        """Step time (mean, median, p99) and lag (the same and max, count) in us, recent."""
         return {
             "step_us": TimingStats.of(self.step_us).to_json(),
-            "lag_us": TimingStats.of(self.lag_us).to_json(),
+            "lag_us": lag_statistics(self.lag_us),
         }
 
 
@@ -101,11 +221,14 @@ class EstimatorService:
     publisher : Publisher
     tlog_path : str, optional
         Record everything published here (record time: the IMU time it belongs to).
-
     log : text stream
         Where the stats line goes (stderr).
     stats_interval_s : float
         Wall seconds between stats lines (0: never).
+    signing : LinkSigning, optional
+        Sign what is sent and accept only correctly signed input (None: signing off).
+    report_window_s : float
+        Sim time per entry of ``windows`` in :meth:`summary`.
     """
 
     def __init__(
@@ -117,6 +240,8 @@ class EstimatorService:
         tlog_path: str | None = None,
         log: TextIO = sys.stderr,
         stats_interval_s: float = 5.0,
+        signing: LinkSigning | None = None,
+        report_window_s: float = REPORT_WINDOW_S,
     ) -> None:
         self.pipeline = pipeline
         self.inbound = inbound
@@ -125,7 +250,15 @@ class EstimatorService:
         self.stats = ServiceStats()
         self.log = log
         self.stats_interval_s = stats_interval_s
+        self.signing = signing
+        self.windows = SimTimeWindows(report_window_s)
         self._mav = mavlink.MAVLink(None, ESTIMATOR_SYSTEM_ID, ESTIMATOR_COMPONENT_ID)
+        if signing is not None:
+            if hasattr(inbound, "setup_signing"):
+                signing.enable(inbound, ESTIMATOR_LINK_ID)
+            signing.watch(self._mav)
+        self._parser = self._new_parser()
+        self._reader = DatagramReader(inbound) if is_udp(inbound) else None
         self._tlog = TlogWriter(tlog_path) if tlog_path else None
         self._clock_s = 0.0
         self._last_stats = time.monotonic()
@@ -136,20 +269,56 @@ class EstimatorService:
 
     # -- receiving -------------------------------------------------------------------------
 
-    def handle(self, msg: MavMessage, received_ns: int) -> None:
-        """Process one inbound message."""
+    def _new_parser(self) -> mavlink.MAVLink:
+        if self.signing is not None:
+            return self.signing.parser()
+        parser = mavlink.MAVLink(None)
+        parser.robust_parsing = True
+        return parser
+
+    def on_datagram(self, data: bytes, arrival_ns: int) -> bool:
+        """Parse one datagram and process its frames; whether any frame was accepted.
+
+        Parameters
+        ----------
+        data : bytes
+            The datagram as received.
+        arrival_ns : int
+            When it arrived (``time.time_ns()`` clock; the kernel's stamp where there is one).
+        """
+        parser = self._parser
+        try:
+            messages = parser.parse_buffer(data) or []
+        except Exception:  # pymavlink raises assorted errors on garbage: never crash
+            self.stats.bad_packets += 1
+            self._parser = self._new_parser()
+            return False
+        if parser.buf_len() > 0:  # a frame cut short: UDP carries whole frames, drop the rest
+            self.stats.bad_packets += 1
+            self._parser = self._new_parser()
+        accepted = False
+        for msg in messages:
+            accepted = self.handle(msg, arrival_ns) or accepted
+        return accepted
+
+    def handle(self, msg: MavMessage, received_ns: int) -> bool:
+        """Process one parsed message; whether it was a frame (not bad data or a rejection).
+
+        ``received_ns`` is its datagram's arrival on the ``time.time_ns()`` clock.
+        """
         kind = msg.get_type()
         self.stats.received[kind] += 1
         if kind == "BAD_DATA":
-            self.stats.bad_packets += 1
-            return
+            if not LinkSigning.is_rejection(msg):  # the signing check counted its own
+                self.stats.bad_packets += 1
+            return False
         stamp_us = getattr(msg, "time_usec", None)
         if stamp_us is not None and kind != "SERVO_OUTPUT_RAW":  # SERVO's is 32-bit: wraps
             self._clock_s = stamp_us * 1e-6
 
         if msg.get_srcComponent() == ESTIMATOR_COMPONENT_ID:
             self.stats.ignored += 1  # our own traffic looped back
-            return
+            return True
         try:
             if kind == "HIGHRES_IMU":
                 self._on_imu(codec.decode_highres_imu(msg), msg, received_ns)
@@ -168,19 +337,25 @@ class EstimatorService:
             self.stats.decode_errors += 1
             if kind == "HIGHRES_IMU":
                 self._acknowledge(msg.time_usec * 1e-6)
+        return True
 
     def _on_imu(self, sample, msg: MavMessage, received_ns: int) -> None:
         out = self.pipeline.on_imu(sample)
         self._last_data_wall = time.monotonic()
+        attitude_sent_ns = None
         if out is not None:
-            self._publish(self.publisher.messages(out))
+            attitude_sent_ns = self._publish(self.publisher.messages(out))
             self.stats.step_us.append(out.step_us)
             self.stats.events.extend(out.events)
             self._last_output = out
             for event in out.events:
                 self._say(f"serve: t={event.t_s:.2f} s {event.text()}")
         self._acknowledge(sample.time_s)
-        self.stats.lag_us.append((time.perf_counter_ns() - received_ns) / 1e3)
+        lag_us = None
+        if attitude_sent_ns is not None:
+            lag_us = (attitude_sent_ns - received_ns) / 1e3
+            self.stats.lag_us.append(lag_us)
+        self.windows.add(sample.time_s, out.step_us if out is not None else None, lag_us)
 
     def _acknowledge(self, t_s: float) -> None:
         """SYSTEM_TIME back up the input link: processed up to ``t_s``."""
@@ -195,7 +370,9 @@ class EstimatorService:
         except OSError:
             self.stats.send_errors += 1
 
-    def _publish(self, msgs: list[MavMessage]) -> None:
+    def _publish(self, msgs: list[MavMessage]) -> int | None:
+        """Send to every ground station; when the ATTITUDE has left (``time.time_ns()``)."""
+        attitude_sent_ns = None
         for msg in msgs:
             try:
                 buf = msg.pack(self._mav)
@@ -204,8 +381,11 @@ class EstimatorService:
                 continue
             for conn in self.outbound:
                 self._send(conn, buf)
+            if attitude_sent_ns is None and msg.get_msgId() == _ATTITUDE_ID:
+                attitude_sent_ns = time.time_ns()
             if self._tlog is not None:
                 self._tlog.write(buf, self._clock_s)
+        return attitude_sent_ns
 
     # -- the loop --------------------------------------------------------------------------
 
@@ -215,12 +395,23 @@ class EstimatorService:
         readable, _, _ = select.select([self.inbound.port.fileno()], [], [], timeout_s)
         if not readable:
             return 0
+        reader = self._reader
+        if reader is None:  # not UDP: pymavlink reads the stream; the stamp is the read time
+            while True:
+                received_ns = time.time_ns()
+                msg = self.inbound.recv_msg()
+                if msg is None:
+                    break
+                self.handle(msg, received_ns)
+                handled += 1
+            return handled
         while True:
-            received_ns = time.perf_counter_ns()
-            msg = self.inbound.recv_msg()
-            if msg is None:
+            datagram = reader.read()
+            if datagram is None:
                 break
-            self.handle(msg, received_ns)
+            data, arrival_ns, sender = datagram
+            if self.on_datagram(data, arrival_ns):
+                reader.accept_peer(sender)
             handled += 1
         return handled
 
@@ -259,14 +450,23 @@ class EstimatorService:
         def fmt(v: float | None) -> str:
             return "-" if v is None else f"{v:.0f}"
 
+        if self.signing is None:
+            signing = "signing off"
+        else:
+            s = self.signing.counters
+            signing = (
+                f"signing on: unsigned_rejected={s.unsigned_rejected} "
+                f"bad_signature={s.bad_signature} replayed={s.replayed}"
+            )
         return (
             f"serve: t={t} s steps={c.steps} step mean {fmt(step['mean'])} us "
-            f"p99 {fmt(step['p99'])} us lag p99 {fmt(lag['p99'])} us "
+            f"p99 {fmt(step['p99'])} us lag median {fmt(lag['median'])} "
+            f"p99 {fmt(lag['p99'])} max {fmt(lag['max'])} us "
             f"dropped={c.out_of_order} gaps={c.gap_steps} bad={self.stats.bad_packets} "
             f"decode_err={self.stats.decode_errors} ignored={self.stats.ignored} "
             f"send_err={self.stats.send_errors + self.stats.pack_errors} "
             f"realigned={c.realignments} restarts={c.restarts} "
-            f"fault={mode.name if mode else 'none'}"
+            f"fault={mode.name if mode else 'none'} {signing}"
         )
 
     def summary(self) -> dict:
@@ -284,9 +484,18 @@ class EstimatorService:
             "send_errors": self.stats.send_errors,
             "pack_errors": self.stats.pack_errors,
             **self.stats.timing(),
+            "lag_from": "kernel receive" if self._kernel_stamps() else "socket read",
+            "signing": {
+                "enabled": self.signing is not None,
+                **(self.signing.counters.as_dict() if self.signing is not None else {}),
+            },
+            "windows": self.windows.report(),
             "filter_diagnostics": est.diagnostics.as_dict() if est is not None else None,
             "events": [e.to_json() for e in self.stats.events],
         }
+
+    def _kernel_stamps(self) -> bool:
+        return self._reader is not None and self._reader.kernel_stamps
 
     def _say(self, text: str) -> None:
         print(text, file=self.log, flush=True)
@@ -336,6 +545,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         default=0.0,
         help="exit once input has stopped for this many seconds (default 0: run until interrupted)",
     )
+    parser.add_argument(
+        "--report-window",
+        type=float,
+        default=REPORT_WINDOW_S,
+        metavar="S",
+        help="sim seconds per entry of 'windows' (step time, lag) in --json (default %(default)s)",
+    )
+    add_signing_argument(parser)
     add_json_argument(parser, "the statistics at exit")
     FilterOptions.add_arguments(parser)
     parser.set_defaults(handler=_main)
@@ -349,6 +566,11 @@ def _main(args: argparse.Namespace) -> int:
         if not 0.0 < getattr(args, name) <= 100.0 or not math.isfinite(getattr(args, name)):
             raise UserError(f"--{name.replace('_', '-')}: expected a rate in (0, 100] Hz")
     rates = OutputRates(args.attitude_hz, args.position_hz, args.probabilities_hz)
+    if not (math.isfinite(args.report_window) and args.report_window > 0.0):
+        raise UserError(
+            f"--report-window: expected a positive number of seconds, got {args.report_window}"
+        )
+    signing = LinkSigning(load_key(args.signing_key)) if args.signing_key else None
     try:
         inbound = connect(args.in_url, ESTIMATOR_SYSTEM_ID, ESTIMATOR_COMPONENT_ID)
         outbound = [
@@ -364,12 +586,15 @@ def _main(args: argparse.Namespace) -> int:
         Publisher(rates),
         tlog_path=args.tlog,
         stats_interval_s=args.stats_interval,
+        signing=signing,
+        report_window_s=args.report_window,
     )
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: service.stop())
     pipeline.warm_up()
     print(
-        f"serve: ready: {options.variant} on {args.in_url} -> {', '.join(out_urls)}",
+        f"serve: ready: {options.variant} on {args.in_url} -> {', '.join(out_urls)}, "
+        f"{'signing on' if signing else 'signing off'}",
         file=sys.stderr,
         flush=True,
     )

@@ -9,6 +9,10 @@ Every other module gets pymavlink through here.
 from __future__ import annotations
 
 import os
+import socket
+import struct
+import sys
+import time
 
 os.environ["MAVLINK20"] = "1"
 
@@ -31,6 +35,9 @@ SIM_COMPONENT_ID = 1  # QGroundControl creates a vehicle only from a component-1
 PROXY_COMPONENT_ID = 195
 ESTIMATOR_SYSTEM_ID = 1
 ESTIMATOR_COMPONENT_ID = mavlink.MAV_COMP_ID_ONBOARD_COMPUTER  # 191
+#: MAVLink 2 signing link ids: a signed stream is (link id, system, component).
+SIM_LINK_ID = 1
+ESTIMATOR_LINK_ID = 2
 
 MavConnection = mavutil.mavfile
 MavMessage = mavlink.MAVLink_message
@@ -89,3 +96,80 @@ def connect(
 def open_tlog_reader(path: str) -> MavConnection:
     """A recorded tlog for reading (``recv_match`` until ``None``)."""
     return mavutil.mavlink_connection(path, dialect=DIALECT, robust_parsing=True)
+
+
+#: Linux's SO_TIMESTAMPNS (= SCM_TIMESTAMPNS), which Python's socket module does not name.
+_SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)
+_TIMESPEC = struct.Struct("qq")
+_MAX_DATAGRAM = 65535
+
+
+class DatagramReader:
+    """Datagrams of a UDP connection with their kernel receive time, for pymavlink to parse.
+
+    pymavlink's ``recv_msg`` reads the socket itself and keeps no arrival time. This reader takes
+    each datagram off the connection's socket with ``recvmsg`` and the kernel's receive stamp
+    (``SO_TIMESTAMPNS``, Linux; CLOCK_REALTIME, so it includes the time the datagram waited in
+    the socket's queue), and the caller hands the bytes to a pymavlink parser. Elsewhere the
+    stamp is the time of the read (``kernel_stamps`` is then False).
+
+    Parameters
+    ----------
+    conn : MavConnection
+        A ``udpin`` or ``udpout`` connection (``mavutil.mavudp``).
+    receive_buffer_bytes : int
+        Socket receive buffer asked for (the kernel caps it at ``rmem_max``).
+    """
+
+    def __init__(self, conn: MavConnection, receive_buffer_bytes: int = 4 << 20) -> None:
+        self.conn = conn
+        self.sock: socket.socket = conn.port
+        try:
+            self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, receive_buffer_bytes)
+        except OSError:  # pragma: no cover - a platform without it keeps its default
+            pass
+        self.kernel_stamps = False
+        if sys.platform.startswith("linux"):
+            try:
+                self.sock.setsockopt(socket.SOL_SOCKET, _SO_TIMESTAMPNS, 1)
+                self.kernel_stamps = True
+            except OSError:  # pragma: no cover - an old kernel
+                pass
+        self._ancillary = socket.CMSG_SPACE(_TIMESPEC.size)
+
+    def fileno(self) -> int:
+        """The socket's descriptor (for ``select``)."""
+        return self.sock.fileno()
+
+    def read(self) -> tuple[bytes, int, tuple] | None:
+        """The next datagram: ``(bytes, arrival_ns, sender)``; None when none is waiting.
+
+        ``arrival_ns`` is on the ``time.time_ns()`` clock.
+        """
+        try:
+            data, ancillary, _, sender = self.sock.recvmsg(_MAX_DATAGRAM, self._ancillary)
+        except (BlockingIOError, InterruptedError):
+            return None
+        except ConnectionRefusedError:  # an ICMP error of an earlier send: nothing to read
+            return None
+        for level, kind, payload in ancillary:
+            if level == socket.SOL_SOCKET and kind == _SO_TIMESTAMPNS:
+                seconds, nanoseconds = _TIMESPEC.unpack(payload[: _TIMESPEC.size])
+                return data, seconds * 1_000_000_000 + nanoseconds, sender
+        return data, time.time_ns(), sender
+
+    def accept_peer(self, sender: tuple) -> None:
+        """Reply to ``sender`` from now on, as pymavlink's own ``recv`` does for ``udpin``.
+
+        Called only for a sender whose datagram held a frame the parser accepted, so that a
+        sender of junk or of unsigned frames on a signed link gets no replies.
+        """
+        conn = self.conn
+        if getattr(conn, "udp_server", False):
+            conn.clients.add(sender)
+            conn.clients_last_alive[sender] = time.time()
+
+
+def is_udp(conn: object) -> bool:
+    """Whether ``conn`` is a pymavlink UDP connection (one datagram, whole frames)."""
+    return isinstance(conn, mavutil.mavudp)
