@@ -286,6 +286,10 @@ class RunOptions:
         Keep ``sim.tlog`` and ``proxy.tlog``.
     verbose : bool
         Echo the children's stderr.
+    sign : bool
+        Sign every link of the chain with a key made for this run (``OUT_DIR/signing.key``).
+    signing_key_path : str or None
+        Sign every link with this key file instead.
     filter : FilterOptions
     """
 
@@ -298,6 +302,8 @@ class RunOptions:
     truth_hz: float | None = None
     keep_intermediate: bool = False
     verbose: bool = False
+    sign: bool = False
+    signing_key_path: str | None = None
     filter: FilterOptions = field(default_factory=FilterOptions)
 
     @staticmethod
@@ -337,6 +343,19 @@ class RunOptions:
             help="keep sim.tlog and proxy.tlog beside the merged flight.tlog",
         )
         parser.add_argument("--verbose", action="store_true", help="echo the children's stderr")
+        parser.add_argument(
+            "--sign",
+            action="store_true",
+            help="MAVLink 2 signing on every link: a key made for this run (OUT_DIR/signing.key) "
+            "is passed to sim, proxy and serve",
+        )
+        parser.add_argument(
+            "--signing-key",
+            dest="signing_key_path",
+            metavar="FILE",
+            default=None,
+            help="like --sign, with the key in FILE (64 hex characters; README 'Security')",
+        )
         FilterOptions.add_arguments(parser)
 
     @classmethod

@@ -32,6 +32,9 @@ Pacing (DESIGN.md section 4; the split px4-jsbsim-bridge and ArduPilot's SIM_JSB
   while waiting: a one-line error.
 - ``--free-run``: as fast as possible, no waiting (standalone use, tests).
 - ``--realtime``: paced to the wall clock (``--speed`` times real time), no waiting.
+
+With ``--signing-key FILE`` every frame is signed (MAVLink 2, pymavlink's signing, link id
+:data:`~immukf_sitl.mavlink.wire.SIM_LINK_ID`) and only correctly signed acknowledgements count.
 """
 
 from __future__ import annotations
@@ -59,10 +62,12 @@ from immukf_sitl.mavlink.codec import (
     truth_wind_message,
 )
 from immukf_sitl.mavlink.flightlog import scenario_annotation
+from immukf_sitl.mavlink.signing import LinkSigning, load_key
 from immukf_sitl.mavlink.tlog import TlogWriter
 from immukf_sitl.mavlink.wire import (
     ESTIMATOR_COMPONENT_ID,
     SIM_COMPONENT_ID,
+    SIM_LINK_ID,
     SIM_SYSTEM_ID,
     ConnectionError_,
     MavConnection,
@@ -72,7 +77,12 @@ from immukf_sitl.mavlink.wire import (
 )
 from immukf_sitl.models.params import Actuators
 from immukf_sitl.models.sensors import IMU_PERIOD_S
-from immukf_sitl.options import add_json_argument, add_link_arguments, add_tlog_argument
+from immukf_sitl.options import (
+    add_json_argument,
+    add_link_arguments,
+    add_signing_argument,
+    add_tlog_argument,
+)
 from immukf_sitl.samples import ActuatorSample
 from immukf_sitl.scenario import load_scenario
 from sim.flight import Flight, FlightRecord
@@ -539,6 +549,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         metavar="S",
         help="sim time to fly (s; default: the scenario's duration_s)",
     )
+    add_signing_argument(parser)
     add_json_argument(parser)
     parser.set_defaults(handler=run_sim)
 
@@ -566,6 +577,7 @@ def _check_args(args: argparse.Namespace) -> None:
 def run_sim(args: argparse.Namespace) -> int:
     """Handler of ``immukf-sitl sim``."""
     _check_args(args)
+    signing = LinkSigning(load_key(args.signing_key)) if args.signing_key else None
     scenario = load_scenario(args.scenario)
     duration_s = args.duration if args.duration is not None else scenario.duration_s
     mode = "realtime" if args.realtime else "free-run" if args.free_run else "lockstep"
@@ -577,6 +589,8 @@ def run_sim(args: argparse.Namespace) -> int:
         connection = connect(args.out_url, SIM_SYSTEM_ID, SIM_COMPONENT_ID, input_=False)
     except ConnectionError_ as exc:
         raise UserError(str(exc)) from None
+    if signing is not None:
+        signing.enable(connection, SIM_LINK_ID)
     tlog = TlogWriter(args.tlog) if args.tlog else None
     emitter = SimEmitter(
         flight,
@@ -596,7 +610,8 @@ def run_sim(args: argparse.Namespace) -> int:
     previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     print(
         f"sim: {scenario.name}, {duration_s:g} s, {mode} -> {args.out_url}"
-        + (f", tlog {args.tlog}" if args.tlog else ""),
+        + (f", tlog {args.tlog}" if args.tlog else "")
+        + (", signing on" if signing else ", signing off"),
         file=sys.stderr,
         flush=True,
     )
@@ -613,7 +628,9 @@ def run_sim(args: argparse.Namespace) -> int:
         factors = ", ".join(f"{k} x{v:.3f}" for k, v in sorted(flight.airframe_factors.items()))
         print(f"sim: airframe differs from the book: {factors}", file=sys.stderr, flush=True)
     if args.json:
-        print(json.dumps({**stats.as_dict(), "airframe": flight.airframe_factors}), flush=True)
+        signed = {"signing": signing.counters.as_dict()} if signing is not None else {}
+        summary = {**stats.as_dict(), "airframe": flight.airframe_factors, **signed}
+        print(json.dumps(summary), flush=True)
     if stats.stopped_by is not None:
         return 128 + int(signal.Signals[stats.stopped_by])
     return 0

@@ -16,6 +16,12 @@ Two layers, as a Gymnasium wrapper sits on an environment:
   re-packed with the original source system, component and sequence number and the original
   ``fields_updated`` (clearing those bits would hand the estimator the answer).
 
+With ``--signing-key FILE`` (MAVLink 2 signing, :mod:`immukf_sitl.mavlink.signing`) the proxy
+checks the signature of every frame from the sim; a faulted HIGHRES_IMU is signed again by
+pymavlink with the key, with the original frame's link id and timestamp (it stays in the sim's
+stream). A frame that fails the check (unsigned, wrong signature, replayed) is never faulted
+nor re-signed: it is forwarded as it came, and the estimator rejects it.
+
 Fault kinds, from ``t_s`` until ``end_t_s`` (or the end), on each of the fault's channels
 (DESIGN.md section 5, the paper's fault is ``zero``):
 
@@ -59,6 +65,7 @@ from immukf_sitl.mavlink.codec import (
     statustext_message,
 )
 from immukf_sitl.mavlink.flightlog import fault_annotation, scenario_annotation
+from immukf_sitl.mavlink.signing import LinkSigning, load_key
 from immukf_sitl.mavlink.tlog import TlogWriter
 from immukf_sitl.mavlink.wire import (
     PROXY_COMPONENT_ID,
@@ -69,7 +76,12 @@ from immukf_sitl.mavlink.wire import (
     mavlink,
 )
 from immukf_sitl.models.sensors import ImuSpec
-from immukf_sitl.options import add_json_argument, add_link_arguments, add_tlog_argument
+from immukf_sitl.options import (
+    add_json_argument,
+    add_link_arguments,
+    add_signing_argument,
+    add_tlog_argument,
+)
 from immukf_sitl.samples import ImuSample
 from immukf_sitl.scenario import FaultSpec, Scenario, load_scenario
 
@@ -219,6 +231,8 @@ class FaultProxy:
         Recorder of the forwarded stream and the fault annotations.
     scenario_name : str, optional
         Name in the tlog's first record.
+    signing : LinkSigning, optional
+        Check the sim's signatures and sign faulted frames again (None: signing off).
     """
 
     def __init__(
@@ -228,11 +242,13 @@ class FaultProxy:
         downstream: MavConnection | None,
         tlog: TlogWriter | None = None,
         scenario_name: str = "",
+        signing: LinkSigning | None = None,
     ) -> None:
         self.injector = injector
         self.upstream = upstream
         self.downstream = downstream
         self.tlog = tlog
+        self.signing = signing
         self._annotator = mavlink.MAVLink(None, SIM_SYSTEM_ID, PROXY_COMPONENT_ID)
         self._active: set[int] = set()
         self._time_s = 0.0
@@ -278,8 +294,11 @@ class FaultProxy:
         came. HIGHRES_IMU frames on which a fault acts are spliced out and replaced. With a
         tlog, every parsed frame is recorded as forwarded.
         """
-        parser = mavlink.MAVLink(None)
-        parser.robust_parsing = True
+        if self.signing is not None:
+            parser = self.signing.parser()
+        else:
+            parser = mavlink.MAVLink(None)
+            parser.robust_parsing = True
         try:
             messages = parser.parse_buffer(datagram) or []
         except Exception:  # pymavlink raises assorted errors on garbage: never crash
@@ -310,7 +329,11 @@ class FaultProxy:
                     if faulted is not sample:
                         start = out.find(frame, position)
                         if start >= 0:
-                            replacement = repack_highres_imu(message, faulted)
+                            replacement = repack_highres_imu(
+                                message,
+                                faulted,
+                                self.signing.key if self.signing is not None else None,
+                            )
                             out = out[:start] + replacement + out[start + len(frame) :]
                             position = start + len(replacement)
                             frame = replacement
@@ -381,6 +404,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         out_help="the estimator's input",
     )
     add_tlog_argument(parser, "the stream as forwarded (faults included) with fault annotations")
+    add_signing_argument(parser)
     add_json_argument(parser, "the counts at exit")
     parser.set_defaults(handler=run_proxy)
 
@@ -401,6 +425,7 @@ def _enlarge_receive_buffer(conn: MavConnection, size_bytes: int = 4 << 20) -> N
 
 def run_proxy(args: argparse.Namespace) -> int:
     """Handler of ``immukf-sitl proxy``."""
+    signing = LinkSigning(load_key(args.signing_key)) if args.signing_key else None
     scenario = load_scenario(args.scenario)
     if not args.in_url.startswith("udpin:"):
         raise UserError(f"--in {args.in_url!r}: expected udpin:HOST:PORT (the sim sends to it)")
@@ -420,6 +445,7 @@ def run_proxy(args: argparse.Namespace) -> int:
         downstream,
         tlog=tlog,
         scenario_name=scenario.name,
+        signing=signing,
     )
     stop = {"signal": 0}
 
@@ -429,7 +455,8 @@ def run_proxy(args: argparse.Namespace) -> int:
     previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     faults = "; ".join(_describe(f) for f in scenario.faults) or "none"
     print(
-        f"proxy: {args.in_url} -> {args.out_url}, faults of {scenario.name}: {faults}",
+        f"proxy: {args.in_url} -> {args.out_url}, faults of {scenario.name}: {faults}, "
+        f"{'signing on' if signing else 'signing off'}",
         file=sys.stderr,
         flush=True,
     )
@@ -458,5 +485,6 @@ def run_proxy(args: argparse.Namespace) -> int:
         flush=True,
     )
     if args.json:
-        print(json.dumps(stats.as_dict()), flush=True)
+        signed = {"signing": signing.counters.as_dict()} if signing is not None else {}
+        print(json.dumps({**stats.as_dict(), **signed}), flush=True)
     return 0

@@ -9,7 +9,13 @@ output like a ground station to show progress, and when the flight ends writes i
   truth and the fault annotations (``immukf-sitl replay`` reads it);
 - ``estimator.tlog``: everything the estimator published;
 - ``summary.png``: mode probabilities and attitude error over time;
-- ``summary.json``: the summary (also printed with ``--json``).
+- ``summary.json``: the summary (also printed with ``--json``);
+- ``signing.key``: with ``--sign``, the run's MAVLink 2 signing key (owner-only).
+
+With ``--sign`` (or ``--signing-key FILE``) all three processes sign what they send and accept
+only correctly signed input; the summary's ``stream.signing`` holds what each rejected.
+``lag_us`` is serve's: from the arrival of an IMU datagram at its socket to the departure of
+the ATTITUDE computed from it (median, p99, max over the last 10 minutes of ATTITUDE).
 """
 
 from __future__ import annotations
@@ -34,6 +40,7 @@ from immukf_sitl.experiments.report import (
 )
 from immukf_sitl.mavlink.flightlog import merge_flight_log, read_estimator_log, read_flight_log
 from immukf_sitl.mavlink.listener import GroundStationListener
+from immukf_sitl.mavlink.signing import load_key, write_key
 from immukf_sitl.options import RunOptions
 from immukf_sitl.scenario import Scenario, load_scenario, sensors_to_yaml
 from immukf_sitl.service.detection import DetectionEvent
@@ -89,13 +96,30 @@ class RunFiles:
         return self.out_dir / "sensors.yaml"
 
     @property
+    def signing_key(self) -> Path:
+        """The run's own signing key (``--sign``)."""
+        return self.out_dir / "signing.key"
+
+    @property
     def plot(self) -> Path:
         """Mode probabilities and attitude error over time."""
         return self.out_dir / "summary.png"
 
 
+def signing_key_path(options: RunOptions, files: RunFiles) -> str | None:
+    """The key file every process signs with: the user's, a new one (``--sign``), or None."""
+    if options.signing_key_path is not None:
+        load_key(options.signing_key_path)  # a bad file is a one-line error before anything runs
+        return options.signing_key_path
+    if options.sign:
+        write_key(files.signing_key)
+        return str(files.signing_key)
+    return None
+
+
 def fly_chain(scenario: Scenario, options: RunOptions, files: RunFiles) -> ChainResult:
     """Start serve, proxy and sim on free ports, show progress, stop them when the sim ends."""
+    key = signing_key_path(options, files)
     p_proxy, p_est, p_run = free_udp_ports(3)
     echo = options.verbose
     serve_argv = ["serve", "--in", f"udpin:127.0.0.1:{p_est}", "--out",
@@ -116,6 +140,9 @@ def fly_chain(scenario: Scenario, options: RunOptions, files: RunFiles) -> Chain
             sim_argv += ["--speed", str(options.speed)]
     if options.duration_s:
         sim_argv += ["--duration", str(options.duration_s)]
+    if key is not None:
+        for argv in (serve_argv, proxy_argv, sim_argv):
+            argv += ["--signing-key", key]
     duration_s = options.duration_s or scenario.duration_s
 
     listener = GroundStationListener(f"udpin:127.0.0.1:{p_run}")
@@ -205,9 +232,16 @@ def run_scenario(scenario: Scenario, options: RunOptions, out_dir: Path) -> Summ
         wind=dataclasses.asdict(scenario.wind),
         stream={
             "sim": chain.sim.get("sent"),
-            "proxy": {k: v for k, v in chain.proxy.items() if k != "sent"},
+            "proxy": {k: v for k, v in chain.proxy.items() if k not in ("sent", "signing")},
             "estimator": serve_stats.get("counters"),
             "bad_packets": serve_stats.get("bad_packets"),
+            "estimator_lag_us": serve_stats.get("lag_us"),
+            "estimator_windows": serve_stats.get("windows"),
+            "signing": {
+                "serve": serve_stats.get("signing"),
+                "proxy": chain.proxy.get("signing"),
+                "sim": chain.sim.get("signing"),
+            },
         },
         files={
             "flight_tlog": str(files.flight_tlog),
@@ -218,8 +252,16 @@ def run_scenario(scenario: Scenario, options: RunOptions, out_dir: Path) -> Summ
     plot_summary(
         str(files.plot), summary, est.probability_t_s, est.probabilities, flight.truth, track
     )
-    (out_dir / "summary.json").write_text(json.dumps(summary.to_json(), indent=2))
+    (out_dir / "summary.json").write_text(json.dumps(summary_json(summary), indent=2))
     return summary
+
+
+def summary_json(summary: Summary) -> dict:
+    """The summary's JSON with serve's whole lag record (its max and count too)."""
+    out = summary.to_json()
+    if summary.stream is not None and summary.stream.get("estimator_lag_us"):
+        out["lag_us"] = summary.stream["estimator_lag_us"]
+    return out
 
 
 def _last_json(stdout: str, name: str) -> dict:
@@ -274,7 +316,14 @@ def _main(args: argparse.Namespace) -> int:
     print(f"run: {scenario.name} ({duration_s:g} s) -> {out_dir}", file=sys.stderr)
     summary = run_scenario(scenario, options, out_dir)
     print(human_summary(summary), file=sys.stderr)
+    lag = (summary.stream or {}).get("estimator_lag_us") or {}
+    if lag.get("n"):
+        print(
+            f"  serve lag, IMU datagram in to ATTITUDE out: median {lag['median']:.0f} us, "
+            f"p99 {lag['p99']:.0f} us, max {lag['max']:.0f} us ({lag['n']} ATTITUDE)",
+            file=sys.stderr,
+        )
     print(f"run: wrote {out_dir}/ (flight.tlog, estimator.tlog, summary.png)", file=sys.stderr)
     if args.json:
-        print(json.dumps(summary.to_json()))
+        print(json.dumps(summary_json(summary)))
     return 0

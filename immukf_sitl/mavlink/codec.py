@@ -13,6 +13,7 @@ import math
 
 import numpy as np
 
+from immukf_sitl.mavlink.signing import frame_signature_fields
 from immukf_sitl.mavlink.wire import MavMessage, mavlink
 from immukf_sitl.models.earth import isa_density_unchecked
 from immukf_sitl.samples import ActuatorSample, GpsSample, ImuSample, TruthSample
@@ -218,12 +219,16 @@ def decode_truth(msg: MavMessage) -> TruthSample:
     )
 
 
-def repack_highres_imu(original: MavMessage, sample: ImuSample) -> bytes:
+def repack_highres_imu(
+    original: MavMessage, sample: ImuSample, signing_key: bytes | None = None
+) -> bytes:
     """A HIGHRES_IMU frame like ``original`` with the six inertial channels of ``sample``.
 
     Every other field (``time_usec``, magnetometer, pressure, ``fields_updated``, ``id``), the
-    source system and component, the sequence number and the protocol version are kept.
-    Signatures are not (the proxy holds no key); unsigned traffic is the project's default.
+    source system and component, the sequence number and the protocol version are kept. A
+    signed ``original`` (one whose signature the caller's parser verified) is signed again with
+    ``signing_key`` by pymavlink, with its own link id and timestamp, so that it stays in its
+    sender's stream; without a key the frame goes out unsigned.
     """
     values = {name: getattr(original, name) for name in original.get_fieldnames()}
     a, g = sample.accel_mps2, sample.gyro_radps
@@ -236,5 +241,10 @@ def repack_highres_imu(original: MavMessage, sample: ImuSample) -> bytes:
     )
     encoder = mavlink.MAVLink(None, original.get_srcSystem(), original.get_srcComponent())
     encoder.seq = original.get_seq()
-    mavlink1 = original.get_msgbuf()[0] == mavlink.PROTOCOL_MARKER_V1
+    frame = original.get_msgbuf()
+    mavlink1 = frame[0] == mavlink.PROTOCOL_MARKER_V1
+    if signing_key is not None and original.get_signed():
+        encoder.signing.secret_key = signing_key
+        encoder.signing.sign_outgoing = True
+        encoder.signing.link_id, encoder.signing.timestamp = frame_signature_fields(frame)
     return bytes(message.pack(encoder, force_mavlink1=mavlink1))
