@@ -559,6 +559,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _main(args: argparse.Namespace) -> int:
+    signing = LinkSigning(load_key(args.signing_key)) if args.signing_key else None
     options = FilterOptions.from_args(args)
     pipeline = options.pipeline()
     out_urls = args.out_url or [DEFAULT_OUT]
@@ -570,7 +571,6 @@ def _main(args: argparse.Namespace) -> int:
         raise UserError(
             f"--report-window: expected a positive number of seconds, got {args.report_window}"
         )
-    signing = LinkSigning(load_key(args.signing_key)) if args.signing_key else None
     try:
         inbound = connect(args.in_url, ESTIMATOR_SYSTEM_ID, ESTIMATOR_COMPONENT_ID)
         outbound = [
