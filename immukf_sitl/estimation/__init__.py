@@ -8,6 +8,7 @@ from immukf_sitl.estimation.diagnostics import FilterDiagnostics
 from immukf_sitl.estimation.fault_modes import (
     IMU_CHANNELS,
     FaultMode,
+    ObservabilityGate,
     all_fault_modes,
     fault_masked_output,
     single_fault_modes,
@@ -23,6 +24,7 @@ from immukf_sitl.estimation.sigma_points import (
 from immukf_sitl.estimation.ukf import UkfEstimate, UnscentedKalmanFilter
 
 __all__ = [
+    "ObservabilityGate",
     "IMU_CHANNELS",
     "FaultMode",
     "FilterDiagnostics",

@@ -10,7 +10,7 @@ channels — they give the state no feedback but still score the mode's likeliho
 from __future__ import annotations
 
 import itertools
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -151,3 +151,100 @@ def fault_masked_output(
         return z if w is None else z + w
 
     return output
+
+
+#: ``h(t_s, x, u) -> (6, r)``: the healthy IMU output of ``x`` ``(nx, r)`` (one column per mode).
+ChannelPrediction = Callable[[float, np.ndarray, np.ndarray], np.ndarray]
+
+
+@dataclass(frozen=True)
+class ObservabilityGate:
+    """A failed channel's evidence counts only while the channel is observable.
+
+    A mode with channel ``f`` zeroed predicts ``z_f ~ N(0, R_f)``, a sharper forecast than any
+    healthy model's ``N(h_f, S_f)`` with ``S_f > R_f``. While the true channel is within the
+    noise of zero (a q gyro in straight flight) the data cannot tell the two apart, yet every
+    step would hand the fault mode about ``log(S_f / R_f) / 2`` nats: evidence of nothing but the
+    healthy model's own uncertainty. So while mode ``j``'s *own* prediction of its failed
+    channel (which that channel never corrected) is within ``n_sigma`` standard deviations of
+    zero, mode ``j`` is scored on that channel with the fault-free mode's marginal likelihood:
+    the channel says nothing for or against the fault. Once the model says the channel should
+    read a value away from zero, the reading decides: zero-plus-noise (failed) or that value
+    (healthy), which is what the mode probabilities then mean.
+
+    Parameters
+    ----------
+    modes : sequence of FaultMode
+        The bank's modes, in batch order; needs the fault-free mode among them (otherwise the
+        gate does nothing).
+    channel_prediction : callable
+        ``h(t_s, x, u)``: the six healthy IMU channels of states ``x`` ``(nx, r)``.
+    noise_var : ndarray, shape (6,)
+        ``R`` of the six IMU channels.
+    n_sigma : float
+        Observability threshold, in standard deviations of the fault-free mode's innovation.
+    """
+
+    modes: tuple[FaultMode, ...]
+    channel_prediction: ChannelPrediction
+    noise_var: np.ndarray
+    n_sigma: float = 3.0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "modes", tuple(self.modes))
+        object.__setattr__(self, "noise_var", np.asarray(self.noise_var, dtype=float))
+
+    @cached_property
+    def _failed(self) -> list[tuple[int, int]]:
+        """``(mode index, channel index)`` of every failed channel of every faulty mode."""
+        return [
+            (j, i)
+            for j, mode in enumerate(self.modes)
+            for i in range(N_IMU)
+            if mode.bits >> i & 1
+        ]
+
+    @cached_property
+    def _healthy(self) -> int | None:
+        return next((j for j, m in enumerate(self.modes) if m.bits == 0), None)
+
+    def __call__(
+        self,
+        t_s: float,
+        predicted_mean: np.ndarray,
+        innovation: np.ndarray,
+        innovation_cov: np.ndarray,
+        z: np.ndarray,
+        u: np.ndarray,
+        log_likelihood: np.ndarray,
+    ) -> np.ndarray:
+        """The modes' log-likelihoods with unobservable failed channels neutralised.
+
+        Parameters
+        ----------
+        predicted_mean : ndarray, shape (r, nx)
+            Every mode's ``x(k+1|k)``.
+        innovation, innovation_cov : ndarray, shapes (r, nz), (r, nz, nz)
+            The update's innovations and their covariances (IMU channels first).
+        z : ndarray, shape (nz,)
+            The measurement.
+        u : ndarray
+            The control the output model takes.
+        log_likelihood : ndarray, shape (r,)
+            ``log Lambda_j`` (eq. 25) as the filters computed them.
+        """
+        healthy = self._healthy
+        if healthy is None or not self._failed:
+            return log_likelihood
+        own = self.channel_prediction(t_s, np.ascontiguousarray(predicted_mean.T), u)
+        out = np.array(log_likelihood, dtype=float)
+        for j, i in self._failed:
+            s_healthy = float(innovation_cov[healthy, i, i])
+            if abs(own[i, j]) > self.n_sigma * np.sqrt(s_healthy):
+                continue  # observable: the reading decides
+            r = self.noise_var[i]
+            zero_fit = -0.5 * (z[i] * z[i] / r + np.log(2.0 * np.pi * r))
+            nu = innovation[healthy, i]
+            healthy_fit = -0.5 * (nu * nu / s_healthy + np.log(2.0 * np.pi * s_healthy))
+            out[j] += healthy_fit - zero_fit
+        return out

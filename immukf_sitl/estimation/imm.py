@@ -17,6 +17,7 @@ import numpy as np
 
 from immukf_sitl.estimation.angles import angle_mask
 from immukf_sitl.estimation.diagnostics import FilterDiagnostics
+from immukf_sitl.estimation.fault_modes import ObservabilityGate
 from immukf_sitl.estimation.models import Measurement
 from immukf_sitl.estimation.ukf import UnscentedKalmanFilter
 
@@ -50,7 +51,8 @@ class ImmEstimate:
     mode_means, mode_covs : ndarray, shapes (r, nx), (r, nx, nx)
         Mode-matched estimates ``x^j(k+1|k+1)``, ``P^j(k+1|k+1)``.
     log_likelihoods : ndarray, shape (r,)
-        ``log Lambda_j(k+1)`` (eq. 25), zeros on a predict-only step.
+        ``log Lambda_j(k+1)`` (eq. 25) as scored (after the ``evidence`` gate), zeros on a
+        predict-only step.
     innovations : ndarray or None, shape (r, nz)
         Mode-matched innovations, None on a predict-only step.
     nis : ndarray, shape (r,)
@@ -91,6 +93,9 @@ class ImmEstimator:
     probability_floor : float
         Lower bound on every mode probability after eq. (26), so that a mode ruled out can come
         back; 0 disables it (see :func:`immukf_sitl.estimation.kernels.floor_probabilities`).
+    evidence : ObservabilityGate, optional
+        Adjusts the mode-matched log-likelihoods before eq. (26) (e.g. so that a failed channel
+        scores its mode only while observable); None uses them as they are.
     """
 
     def __init__(
@@ -98,6 +103,7 @@ class ImmEstimator:
         ukf: UnscentedKalmanFilter,
         transition: np.ndarray,
         probability_floor: float = 0.0,
+        evidence: ObservabilityGate | None = None,
     ) -> None:
         transition = np.array(transition, dtype=float)
         if transition.ndim != 2 or transition.shape[0] != transition.shape[1]:
@@ -112,6 +118,7 @@ class ImmEstimator:
         with np.errstate(divide="ignore"):
             self.log_transition = np.log(transition)
         self.probability_floor = float(probability_floor)
+        self.evidence = evidence
         self.angle_idx = ukf.process.angle_idx
         self._angle_mask = angle_mask(ukf.process.nx, self.angle_idx)
 
@@ -204,11 +211,16 @@ class ImmEstimator:
         prior = self.ukf.initial_estimate(previous.t_s, mixed_mean, mixed_cov)
         filtered = self.ukf.step(prior, t_next_s, u, measurement)  # eqs. (9)-(25)
 
+        log_likelihood = filtered.log_likelihood
+        if self.evidence is not None and filtered.updated:
+            assert measurement is not None and filtered.innovation is not None
+            log_likelihood = self.evidence(
+                t_next_s, filtered.predicted_mean, filtered.innovation,
+                filtered.innovation_cov, measurement.z, u, log_likelihood,
+            )  # fmt: skip
         log_mu = np.empty(r)
         probs = np.empty(r)
-        kern.imm_posterior(
-            filtered.log_likelihood, log_c, self.probability_floor, log_mu, probs
-        )  # eq. (26)
+        kern.imm_posterior(log_likelihood, log_c, self.probability_floor, log_mu, probs)  # eq. (26)
         mean = np.empty(nx)
         cov = np.empty((nx, nx))
         kern.imm_combine(
@@ -222,7 +234,7 @@ class ImmEstimator:
             log_mu,
             filtered.mean,
             filtered.cov,
-            filtered.log_likelihood,
+            log_likelihood,
             filtered.innovation,
             filtered.nis,
             filtered.updated,

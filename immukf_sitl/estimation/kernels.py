@@ -330,7 +330,8 @@ def predict_moments(
     angle : ndarray of bool, shape (nx,)
         Angle rows.
     add_cov : ndarray, shape (nx, nx)
-        Added to the covariance (``Q`` in the additive form, zeros in the augmented one).
+        Added to the covariance (``Q`` in the additive form; the slow states' driving noise,
+        or zeros, in the augmented one).
     x_points, mean, cov, res : ndarray, shapes (nx, B, S), (B, nx), (B, nx, nx), (B, nx, S)
         Outputs: the full points, ``x^``, ``P``, the residuals.
     """

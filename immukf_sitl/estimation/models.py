@@ -67,6 +67,11 @@ class ProcessModel:
         (``G Q G'`` for a noise gain ``G``). Required only for that form.
     angle_idx : tuple of int
         State components that are angles (wrapped residuals, circular means).
+    state_noise_cov : ndarray, shape (nx, nx), optional
+        Covariance the augmented form adds to ``P(k+1|k)`` for noise that ``f`` does not take
+        through ``v``: the driving noise of slowly varying states (random walks, Gauss-Markov
+        processes), linear in the state, which needs no sigma points of its own. The additive
+        form's ``additive_noise_cov`` must include it.
     """
 
     f: ProcessFn
@@ -74,16 +79,19 @@ class ProcessModel:
     noise_cov: np.ndarray
     additive_noise_cov: np.ndarray | None = None
     angle_idx: tuple[int, ...] = ()
+    state_noise_cov: np.ndarray | None = None
     noise_sqrt: np.ndarray = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "noise_cov", _checked_cov("noise_cov", self.noise_cov))
         object.__setattr__(self, "noise_sqrt", psd_sqrt(self.noise_cov))
-        if self.additive_noise_cov is not None:
-            cov = _checked_cov("additive_noise_cov", self.additive_noise_cov)
-            if cov.shape != (self.nx, self.nx):
-                raise ValueError(f"additive_noise_cov must be ({self.nx}, {self.nx})")
-            object.__setattr__(self, "additive_noise_cov", cov)
+        for name in ("additive_noise_cov", "state_noise_cov"):
+            value = getattr(self, name)
+            if value is not None:
+                cov = _checked_cov(name, value)
+                if cov.shape != (self.nx, self.nx):
+                    raise ValueError(f"{name} must be ({self.nx}, {self.nx})")
+                object.__setattr__(self, name, cov)
 
     @property
     def nv(self) -> int:

@@ -297,7 +297,7 @@ class UnscentedKalmanFilter:
             )  # eqs. (9)-(11), (13)
             moved = proc.f(t_s, x_distinct, u, v_distinct)  # eq. (14)
             source = _process_column_source(nx + nv, n_aug)
-            added_cov = _zeros(nx)
+            added_cov = _zeros(nx) if proc.state_noise_cov is None else proc.state_noise_cov
         else:
             weights = self.scheme.weights(nx)
             points = np.empty((nx, batch, 2 * nx + 1))

@@ -131,6 +131,11 @@ def propeller_thrust_torque(
     )
 
 
+def _zero_extra(n: int) -> np.ndarray:
+    """Zeros for the filter model's slow states of ``n`` columns: the aircraft itself."""
+    return np.zeros((kernels.N_EXTRA, n))
+
+
 def _writeable_contiguous(a: np.ndarray) -> np.ndarray:
     """``a`` as a C-contiguous float array the kernels accept (a copy only when needed)."""
     a = np.ascontiguousarray(a, dtype=float)
@@ -343,10 +348,12 @@ class AeroModel:
         if self.uses_numba:
             n = x[0].size
             x2, u2, v2 = self._flat(x, u, v, n)
-            kernels.derivatives_batch(x2, u2, v2, self._k, out.reshape(x.shape[0], n))
+            e2 = _zero_extra(n)
+            kernels.derivatives_batch(x2, u2, v2, e2, self._k, out.reshape(x.shape[0], n))
         else:
-            fm = np.empty((6, *x.shape[1:]))
-            kernels.uncompiled.derivatives(x, u, self._rows(x, v), self._k, fm, out)
+            fm, xa = np.empty((6, *x.shape[1:])), np.empty(x.shape)
+            e = np.zeros(kernels.N_EXTRA)
+            kernels.uncompiled.derivatives(x, u, self._rows(x, v), e, self._k, fm, xa, out)
         return out
 
     def step(
@@ -370,16 +377,30 @@ class AeroModel:
         numpy.ndarray
             ``(12, *batch)`` state at ``t_s + dt_s``, with phi and psi wrapped to [-pi, pi).
         """
+        return self.step_with(x, u, v, None)
+
+    def step_with(
+        self, x: np.ndarray, u: np.ndarray, v: np.ndarray | None, e: np.ndarray | None
+    ) -> np.ndarray:
+        """:meth:`step` of ``x`` ``(12, *batch)`` in air moving, and with corrections, as ``e``.
+
+        ``e`` ``(N_EXTRA, *batch)`` holds the filter model's slow states, held over the step
+        (layout :data:`immukf_sitl.models.aero_kernels.N_EXTRA`); None means zeros.
+        """
         x = np.asarray(x, dtype=float)
         u = np.asarray(u, dtype=float)
         out = np.empty(x.shape, dtype=float)
         if self.uses_numba:
             n = x[0].size
             x2, u2, v2 = self._flat(x, u, v, n)
-            kernels.step_batch(x2, u2, v2, self._k, self.dt_s, out.reshape(x.shape[0], n))
+            e2 = _zero_extra(n) if e is None else _writeable_contiguous(e.reshape(-1, n))
+            kernels.step_batch(x2, u2, v2, e2, self._k, self.dt_s, out.reshape(x.shape[0], n))
         else:
             scratch = [np.empty(x.shape) for _ in range(3)] + [np.empty((6, *x.shape[1:]))]
-            kernels.uncompiled.rk4_step(x, u, self._rows(x, v), self._k, self.dt_s, *scratch, out)
+            e = np.zeros(kernels.N_EXTRA) if e is None else e
+            kernels.uncompiled.rk4_step(
+                x, u, self._rows(x, v), e, self._k, self.dt_s, *scratch, np.empty(x.shape), out
+            )
         return out
 
     # -----------------------------------------------------------------------------------------
@@ -397,15 +418,27 @@ class AeroModel:
         numpy.ndarray
             ``(6, *batch)``: specific force (m/s^2) and body rates (rad/s).
         """
+        return self.imu_with(x, u, None)
+
+    def imu_with(self, x: np.ndarray, u: np.ndarray, e: np.ndarray | None) -> np.ndarray:
+        """:meth:`imu` of ``x`` ``(12, *batch)`` with the filter model's slow states ``e``.
+
+        ``e`` ``(N_EXTRA, *batch)``: the wind sets the air-relative velocity, the corrections add
+        to the specific force and angular acceleration, the gyro biases to the rates; None
+        means zeros.
+        """
         x = np.asarray(x, dtype=float)
         u = np.asarray(u, dtype=float)
         out = np.empty((6, *x.shape[1:]), dtype=float)
         if self.uses_numba:
             n = x[0].size
             x2, u2 = self._flat_xu(x, u, n)
-            kernels.imu_batch(x2, u2, self._k, out.reshape(6, n))
+            e2 = _zero_extra(n) if e is None else _writeable_contiguous(e.reshape(-1, n))
+            kernels.imu_batch(x2, u2, e2, self._k, out.reshape(6, n))
         else:
-            kernels.uncompiled.imu(x, u, self._k, np.empty((6, *x.shape[1:])), out)
+            e = np.zeros(kernels.N_EXTRA) if e is None else e
+            scratch = np.empty((6, *x.shape[1:])), np.empty(x.shape)
+            kernels.uncompiled.imu(x, u, e, self._k, *scratch, out)
         return out
 
     def gps(self, t_s: float, x: np.ndarray, u: np.ndarray) -> np.ndarray:
@@ -414,9 +447,14 @@ class AeroModel:
         Ground speed is horizontal, ``sqrt(vN^2 + vE^2)``, and course ``atan2(vE, vN)`` in
         ``(-pi, pi]`` (no wind, so the ground velocity is the air velocity rotated to NED).
         """
+        return self.gps_with(x, None)
+
+    def gps_with(self, x: np.ndarray, e: np.ndarray | None) -> np.ndarray:
+        """:meth:`gps` of ``x`` ``(12, *batch)`` plus the receiver errors held in ``e``."""
         x = np.asarray(x, dtype=float)
         out = np.empty((5, *x.shape[1:]), dtype=float)
-        kernels.uncompiled.gps(x, out)  # uncompiled, over whole rows: off the hot path
+        e = np.zeros(kernels.N_EXTRA) if e is None else e
+        kernels.uncompiled.gps(x, e, out)  # uncompiled, over whole rows: off the hot path
         return out
 
     # -----------------------------------------------------------------------------------------

@@ -56,7 +56,9 @@ from immukf_sitl.models.params import AircraftParams, Propulsion
 
 __all__ = [
     "NAMES",
+    "N_EXTRA",
     "air_density",
+    "air_relative",
     "angular_acceleration",
     "derivatives",
     "derivatives_batch",
@@ -72,6 +74,7 @@ __all__ = [
     "propeller",
     "rk4_step",
     "rotate_body_to_ned",
+    "rotate_ned_to_body",
     "stall_blend_sigma",
     "step_batch",
     "uncompiled",
@@ -121,6 +124,17 @@ NAMES = (
     IMU_RX, IMU_RY, IMU_RZ,
 ) = range(len(NAMES))  # fmt: skip
 _TWO_PI = 2.0 * math.pi
+
+#: Layout of ``e``, the slowly varying states of the filter's model that follow the 12 rigid-body
+#: states (:class:`immukf_sitl.models.augmented.AugmentedAeroModel`; zeros for the aircraft
+#: itself): wind NED (m/s), gyro biases p, q, r (rad/s), specific-force corrections x, y, z
+#: (m/s^2), angular-acceleration corrections p, q, r (rad/s^2), GPS position errors NED (m).
+WIND_N, WIND_E, WIND_D = 0, 1, 2
+GYRO_BIAS_P = 3
+FORCE_X = 6
+MOMENT_P = 9
+GPS_ERROR_N = 12
+N_EXTRA = 15
 
 
 def _pack(values: dict[str, float]) -> np.ndarray:
@@ -379,13 +393,62 @@ def angular_acceleration(
 
 
 @_kernel
-def derivatives(
-    x: np.ndarray, u: np.ndarray, v: np.ndarray, k: np.ndarray, fm: np.ndarray, out: np.ndarray
-) -> None:
-    """State derivative into ``out[0:12]``, B&M eqs. (3.14)-(3.17); ``fm`` is (6,) scratch.
+def rotate_ned_to_body(
+    north: Value,
+    east: Value,
+    down: Value,
+    sph: Value,
+    cph: Value,
+    sth: Value,
+    cth: Value,
+    sps: Value,
+    cps: Value,
+) -> tuple[Value, Value, Value]:
+    """NED vector to body, ``R_bn = R_nb'`` (the transpose of :func:`rotate_body_to_ned`)."""
+    sph_sth = sph * sth
+    cph_sth = cph * sth
+    x = cth * cps * north + cth * sps * east - sth * down
+    y = (sph_sth * cps - cph * sps) * north + (sph_sth * sps + cph * cps) * east + sph * cth * down
+    z = (cph_sth * cps + sph * sps) * north + (cph_sth * sps - sph * cps) * east + cph * cth * down
+    return x, y, z
 
-    ``v`` is the process noise added to ``u_dot, v_dot, w_dot`` and ``p_dot, q_dot, r_dot``.
-    Gravity is the flat earth's normal gravity, corrected for height by its gradient.
+
+@_kernel
+def air_relative(x: np.ndarray, e: np.ndarray, xa: np.ndarray) -> None:
+    """``x`` with its body velocity made relative to the air moving at ``e[0:3]`` (NED), in ``xa``.
+
+    The forces and moments depend on the velocity through the air, ``v_a = v_g - R_bn w``
+    (B&M eq. 2.5); the rigid-body equations keep the ground velocity.
+    """
+    sph, cph = np.sin(x[6]), np.cos(x[6])
+    sth, cth = np.sin(x[7]), np.cos(x[7])
+    sps, cps = np.sin(x[8]), np.cos(x[8])
+    w_u, w_v, w_w = rotate_ned_to_body(e[WIND_N], e[WIND_E], e[WIND_D], sph, cph, sth, cth, sps, cps)
+    for i in range(12):
+        xa[i] = x[i]
+    xa[3] = x[3] - w_u
+    xa[4] = x[4] - w_v
+    xa[5] = x[5] - w_w
+
+
+@_kernel
+def derivatives(
+    x: np.ndarray,
+    u: np.ndarray,
+    v: np.ndarray,
+    e: np.ndarray,
+    k: np.ndarray,
+    fm: np.ndarray,
+    xa: np.ndarray,
+    out: np.ndarray,
+) -> None:
+    """State derivative into ``out[0:12]``, B&M eqs. (3.14)-(3.17); ``fm``, ``xa`` are scratch.
+
+    ``v`` is the process noise added to ``u_dot, v_dot, w_dot`` and ``p_dot, q_dot, r_dot``;
+    ``e`` the slowly varying states of the filter's model (:data:`N_EXTRA`; zeros for the
+    aircraft itself): the wind sets the air-relative velocity the forces see, the corrections
+    add a specific force (m/s^2) and an angular acceleration (rad/s^2). Gravity is the flat
+    earth's normal gravity, corrected for height by its gradient.
     """
     uu, vv, ww = x[3], x[4], x[5]
     p, q, r = x[9], x[10], x[11]
@@ -396,21 +459,22 @@ def derivatives(
     out[0] = north  # B&M eq. (3.14)
     out[1] = east
     out[2] = down
-    forces_moments(x, u, k, fm)
+    air_relative(x, e, xa)
+    forces_moments(xa, u, k, fm)
     grav = k[G0] + k[DG] * x[2]
     inv_m = k[INV_MASS]
     # B&M eq. (3.15), gravity in body axes (eq. 4.3)
-    out[3] = r * vv - q * ww + fm[0] * inv_m - grav * sth + v[0]
-    out[4] = p * ww - r * uu + fm[1] * inv_m + grav * cth * sph + v[1]
-    out[5] = q * uu - p * vv + fm[2] * inv_m + grav * cth * cph + v[2]
+    out[3] = r * vv - q * ww + fm[0] * inv_m + e[FORCE_X] - grav * sth + v[0]
+    out[4] = p * ww - r * uu + fm[1] * inv_m + e[FORCE_X + 1] + grav * cth * sph + v[1]
+    out[5] = q * uu - p * vv + fm[2] * inv_m + e[FORCE_X + 2] + grav * cth * cph + v[2]
     # B&M eq. (3.16): Euler angle rates
     out[6] = p + (q * sph + r * cph) * (sth / cth)
     out[7] = q * cph - r * sph
     out[8] = (q * sph + r * cph) / cth
     p_dot, q_dot, r_dot = angular_acceleration(p, q, r, fm[3], fm[4], fm[5], k)
-    out[9] = p_dot + v[3]
-    out[10] = q_dot + v[4]
-    out[11] = r_dot + v[5]
+    out[9] = p_dot + e[MOMENT_P] + v[3]
+    out[10] = q_dot + e[MOMENT_P + 1] + v[4]
+    out[11] = r_dot + e[MOMENT_P + 2] + v[5]
 
 
 @_kernel
@@ -424,24 +488,26 @@ def rk4_step(
     x: np.ndarray,
     u: np.ndarray,
     v: np.ndarray,
+    e: np.ndarray,
     k: np.ndarray,
     dt: float,
     xt: np.ndarray,
     kk: np.ndarray,
     acc: np.ndarray,
     fm: np.ndarray,
+    xa: np.ndarray,
     out: np.ndarray,
 ) -> None:
-    """Classical RK4 over ``dt`` with u and v held, into ``out``; phi and psi wrapped.
+    """Classical RK4 of ``x[0:12]`` over ``dt`` with u, v and e held, into ``out``; phi, psi wrapped.
 
-    ``xt``, ``kk``, ``acc`` (like x) and ``fm`` (6 rows) are scratch.
+    ``xt``, ``kk``, ``acc``, ``xa`` (12 rows) and ``fm`` (6 rows) are scratch.
     """
     half = 0.5 * dt
     for i in range(12):
         xt[i] = x[i]
     # k1..k4 at x, x + dt/2 k1, x + dt/2 k2, x + dt k3 (one call site: inlined once)
     for stage in range(4):
-        derivatives(xt, u, v, k, fm, kk)
+        derivatives(xt, u, v, e, k, fm, xa, kk)
         if stage == 0:
             for i in range(12):
                 acc[i] = kk[i]
@@ -461,20 +527,34 @@ def rk4_step(
 
 
 @_kernel
-def imu(x: np.ndarray, u: np.ndarray, k: np.ndarray, fm: np.ndarray, out: np.ndarray) -> None:
-    """Noise-free IMU ``[f_x, f_y, f_z, p, q, r]`` into ``out[0:6]``; ``fm`` is (6,) scratch.
+def imu(
+    x: np.ndarray,
+    u: np.ndarray,
+    e: np.ndarray,
+    k: np.ndarray,
+    fm: np.ndarray,
+    xa: np.ndarray,
+    out: np.ndarray,
+) -> None:
+    """Noise-free IMU ``[f_x, f_y, f_z, p, q, r]`` into ``out[0:6]``; ``fm``, ``xa`` are scratch.
 
-    Specific force (aerodynamic + thrust force over mass) at the CG, moved to the IMU at ``r``
-    by ``+ omega_dot x r + omega x (omega x r)`` when the lever arm is non-zero.
+    Specific force (aerodynamic + thrust force over mass, from the air-relative velocity, plus
+    the model's correction ``e``) at the CG, moved to the IMU at ``r`` by
+    ``+ omega_dot x r + omega x (omega x r)`` when the lever arm is non-zero; the gyros read the
+    body rates plus their biases.
     """
-    forces_moments(x, u, k, fm)
+    air_relative(x, e, xa)
+    forces_moments(xa, u, k, fm)
     p, q, r = x[9], x[10], x[11]
     inv_m = k[INV_MASS]
-    out[0] = fm[0] * inv_m
-    out[1] = fm[1] * inv_m
-    out[2] = fm[2] * inv_m
+    out[0] = fm[0] * inv_m + e[FORCE_X]
+    out[1] = fm[1] * inv_m + e[FORCE_X + 1]
+    out[2] = fm[2] * inv_m + e[FORCE_X + 2]
     rx, ry, rz = k[IMU_RX], k[IMU_RY], k[IMU_RZ]
     p_dot, q_dot, r_dot = angular_acceleration(p, q, r, fm[3], fm[4], fm[5], k)
+    p_dot += e[MOMENT_P]
+    q_dot += e[MOMENT_P + 1]
+    r_dot += e[MOMENT_P + 2]
     if rx != 0.0 or ry != 0.0 or rz != 0.0:
         wr_x = q * rz - r * ry  # omega x r
         wr_y = r * rx - p * rz
@@ -482,24 +562,26 @@ def imu(x: np.ndarray, u: np.ndarray, k: np.ndarray, fm: np.ndarray, out: np.nda
         out[0] += (q_dot * rz - r_dot * ry) + (q * wr_z - r * wr_y)
         out[1] += (r_dot * rx - p_dot * rz) + (r * wr_x - p * wr_z)
         out[2] += (p_dot * ry - q_dot * rx) + (p * wr_y - q * wr_x)
-    out[3] = p
-    out[4] = q
-    out[5] = r
+    out[3] = p + e[GYRO_BIAS_P]
+    out[4] = q + e[GYRO_BIAS_P + 1]
+    out[5] = r + e[GYRO_BIAS_P + 2]
 
 
 @_kernel
-def gps(x: np.ndarray, out: np.ndarray) -> None:
-    """Noise-free GPS ``[pN, pE, pD, Vg, chi]`` into ``out[0:5]`` (no wind).
+def gps(x: np.ndarray, e: np.ndarray, out: np.ndarray) -> None:
+    """Noise-free GPS ``[pN, pE, pD, Vg, chi]`` into ``out[0:5]``.
 
-    Ground speed is horizontal, ``hypot(vN, vE)``; course ``atan2(vE, vN)`` in (-pi, pi].
+    Position plus the receiver's slowly wandering error ``e`` (B&M eq. 7.17); ground speed is
+    horizontal, ``hypot(vN, vE)``, and course ``atan2(vE, vN)`` in (-pi, pi], both of the
+    velocity over the ground (the state's velocity; the wind does not enter).
     """
     sph, cph = np.sin(x[6]), np.cos(x[6])
     sth, cth = np.sin(x[7]), np.cos(x[7])
     sps, cps = np.sin(x[8]), np.cos(x[8])
     v_n, v_e, _ = rotate_body_to_ned(x[3], x[4], x[5], sph, cph, sth, cth, sps, cps)
-    out[0] = x[0]
-    out[1] = x[1]
-    out[2] = x[2]
+    out[0] = x[0] + e[GPS_ERROR_N]
+    out[1] = x[1] + e[GPS_ERROR_N + 1]
+    out[2] = x[2] + e[GPS_ERROR_N + 2]
     out[3] = np.hypot(v_n, v_e)
     out[4] = np.arctan2(v_e, v_n)
 
@@ -517,32 +599,43 @@ def _column(a: np.ndarray, j: int, col: np.ndarray) -> None:
 
 @numba.njit(cache=True, error_model="numpy")
 def step_batch(
-    x: np.ndarray, u: np.ndarray, v: np.ndarray, k: np.ndarray, dt: float, out: np.ndarray
+    x: np.ndarray,
+    u: np.ndarray,
+    v: np.ndarray,
+    e: np.ndarray,
+    k: np.ndarray,
+    dt: float,
+    out: np.ndarray,
 ) -> None:
-    """:func:`rk4_step` of every column of x (12, N), u (4, N), v (6, N) into out (12, N)."""
+    """:func:`rk4_step` of every column of x (12, N), u (4, N), v (6, N), e (15, N) into out.
+
+    ``out`` is (12, N); ``e`` is not advanced (the caller owns the slow states' dynamics).
+    """
     xs, xt, kk, acc, xo = np.empty(12), np.empty(12), np.empty(12), np.empty(12), np.empty(12)
-    us, vs, fm = np.empty(4), np.empty(6), np.empty(6)
+    us, vs, es, fm, xa = np.empty(4), np.empty(6), np.empty(N_EXTRA), np.empty(6), np.empty(12)
     for j in range(x.shape[1]):
         _column(x, j, xs)
         _column(u, j, us)
         _column(v, j, vs)
-        rk4_step(xs, us, vs, k, dt, xt, kk, acc, fm, xo)
+        _column(e, j, es)
+        rk4_step(xs, us, vs, es, k, dt, xt, kk, acc, fm, xa, xo)
         for i in range(12):
             out[i, j] = xo[i]
 
 
 @numba.njit(cache=True, error_model="numpy")
 def derivatives_batch(
-    x: np.ndarray, u: np.ndarray, v: np.ndarray, k: np.ndarray, out: np.ndarray
+    x: np.ndarray, u: np.ndarray, v: np.ndarray, e: np.ndarray, k: np.ndarray, out: np.ndarray
 ) -> None:
-    """:func:`derivatives` of every column of x (12, N), u (4, N), v (6, N) into out (12, N)."""
-    xs, kk = np.empty(12), np.empty(12)
-    us, vs, fm = np.empty(4), np.empty(6), np.empty(6)
+    """:func:`derivatives` of every column of x (12, N), u (4, N), v (6, N), e (15, N) into out."""
+    xs, kk, xa = np.empty(12), np.empty(12), np.empty(12)
+    us, vs, es, fm = np.empty(4), np.empty(6), np.empty(N_EXTRA), np.empty(6)
     for j in range(x.shape[1]):
         _column(x, j, xs)
         _column(u, j, us)
         _column(v, j, vs)
-        derivatives(xs, us, vs, k, fm, kk)
+        _column(e, j, es)
+        derivatives(xs, us, vs, es, k, fm, xa, kk)
         for i in range(12):
             out[i, j] = kk[i]
 
@@ -560,13 +653,16 @@ def forces_moments_batch(x: np.ndarray, u: np.ndarray, k: np.ndarray, out: np.nd
 
 
 @numba.njit(cache=True, error_model="numpy")
-def imu_batch(x: np.ndarray, u: np.ndarray, k: np.ndarray, out: np.ndarray) -> None:
-    """:func:`imu` of every column of x (12, N), u (4, N) into out (6, N)."""
-    xs, us, fm, zs = np.empty(12), np.empty(4), np.empty(6), np.empty(6)
+def imu_batch(x: np.ndarray, u: np.ndarray, e: np.ndarray, k: np.ndarray, out: np.ndarray) -> None:
+    """:func:`imu` of every column of x (12, N), u (4, N), e (15, N) into out (6, N)."""
+    xs, us, es, fm, zs, xa = (
+        np.empty(12), np.empty(4), np.empty(N_EXTRA), np.empty(6), np.empty(6), np.empty(12)
+    )  # fmt: skip
     for j in range(x.shape[1]):
         _column(x, j, xs)
         _column(u, j, us)
-        imu(xs, us, k, fm, zs)
+        _column(e, j, es)
+        imu(xs, us, es, k, fm, xa, zs)
         for i in range(6):
             out[i, j] = zs[i]
 

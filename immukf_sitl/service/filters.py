@@ -34,16 +34,19 @@ from immukf_sitl.estimation import (
     MeasurementModel,
     ProcessModel,
     UnscentedKalmanFilter,
+    ObservabilityGate,
     fault_masked_output,
     single_fault_modes,
 )
 from immukf_sitl.estimation.ukf import Backend, NoiseForm
 from immukf_sitl.models.aero import AeroModel
+from immukf_sitl.models.augmented import GPS_ERROR, N_RIGID, AugmentedAeroModel
 from immukf_sitl.models.earth import NedOrigin
 from immukf_sitl.models.ins import InsModel
 from immukf_sitl.models.params import AircraftParams
 from immukf_sitl.models.sensors import IMU_PERIOD_S, SensorSpec
 from immukf_sitl.service.alignment import NavSolution, body_to_ned
+from immukf_sitl.service.noise_model import SlowStateNoise, slow_state_noise
 from immukf_sitl.service.tuning import FilterTuning
 
 Variant = Literal["ukf1", "ukf2", "ukf3", "imm"]
@@ -52,23 +55,26 @@ GPS_COURSE_CHANNEL = 4
 
 
 def aero_process_model(
-    model: AeroModel, sensors: SensorSpec | None = None, tuning: FilterTuning | None = None
+    model: AugmentedAeroModel, noise: SlowStateNoise, sensors: SensorSpec, tuning: FilterTuning
 ) -> ProcessModel:
-    """``x(k+1) = f[x(k), u(k), v(k)]`` (eq. 1): RK4 of the 6-DOF aircraft model.
+    """``x(k+1) = f[x(k), u(k), v(k)]`` (eq. 1): RK4 of the 6-DOF model with its slow states.
 
     ``v`` is additive on the body and angular accelerations, with standard deviations
     ``tuning.process_noise_factor`` times the accelerometer (m/s^2) and gyro (rad/s, read as
-    rad/s^2) noise. The filter's control argument is the pair ``[u(k), u(k+1)]`` (shape (2, 4)):
-    ``f`` flies the step on ``u(k)``, the output model predicts the IMU at ``k+1`` with
-    ``u(k+1)`` (the specific force depends on the surfaces and throttle acting at the sample).
+    rad/s^2) noise: the fast residue the slow states do not carry. The slow states' driving
+    noise (``noise``) is linear and enters ``P(k+1|k)`` directly (``state_noise_cov``). The
+    filter's control argument is the pair ``[u(k), u(k+1)]`` (shape (2, 4)): ``f`` flies the
+    step on ``u(k)``, the output model predicts the IMU at ``k+1`` with ``u(k+1)`` (the
+    specific force depends on the surfaces and throttle acting at the sample).
     """
-    sensors = sensors if sensors is not None else SensorSpec()
-    tuning = tuning if tuning is not None else FilterTuning()
     sigma = tuning.process_noise_factor * sensors.imu.sigmas
     q = np.diag(sigma**2)
-    # additive form: v held over one step moves velocity and rates by v dt
     dt = model.dt_s
-    additive = np.zeros((12, 12))
+    nx = model.nx
+    slow = np.zeros((nx, nx))
+    slow[N_RIGID:, N_RIGID:] = np.diag(noise.step_variance(dt))
+    # additive form: v held over one step moves velocity and rates by v dt
+    additive = slow.copy()
     vel_rates = [3, 4, 5, 9, 10, 11]
     additive[np.ix_(vel_rates, vel_rates)] = q * dt**2
 
@@ -77,17 +83,22 @@ def aero_process_model(
 
     return ProcessModel(
         f=f,
-        nx=12,
+        nx=nx,
         noise_cov=q,
         additive_noise_cov=additive,
         angle_idx=model.angle_indices,
+        state_noise_cov=slow,
     )
 
 
 def aero_measurement_models(
-    model: AeroModel, modes: Sequence[FaultMode], sensors: SensorSpec
+    model: AugmentedAeroModel, modes: Sequence[FaultMode], sensors: SensorSpec
 ) -> tuple[MeasurementModel, MeasurementModel]:
-    """Mode-batched output models (eq. 2): IMU alone, and IMU followed by GPS."""
+    """Mode-batched output models (eq. 2): IMU alone, and IMU followed by GPS.
+
+    The GPS position is the receiver's, wandering error included (a state); its white ``R`` is
+    the receiver's driving noise (the per-fix increment of that error, B&M eq. 7.17).
+    """
 
     def imu(t_s: float, x: np.ndarray, u: np.ndarray, w: np.ndarray | None) -> np.ndarray:
         return model.imu(t_s, x, u[1])
@@ -183,34 +194,47 @@ class _Bank:
         cov: np.ndarray,
         controls: np.ndarray,
         imu: np.ndarray | None = None,
+        mode_probabilities: np.ndarray | None = None,
     ) -> VariantEstimate:
         """Every mode starts from ``mean``, ``cov`` at ``t_s``; ``controls`` act from then.
 
         ``imu`` is the sample at ``t_s`` (the INS integrates it over the first step; zeros if
-        not given).
+        not given); ``mode_probabilities`` default to the chain's stationary distribution.
         """
-        bank = self.imm.initial_estimate(t_s, mean, cov, self.prior_probabilities())
+        probs = self.prior_probabilities() if mode_probabilities is None else mode_probabilities
+        bank = self.imm.initial_estimate(t_s, mean, cov, probs)
         imu = np.zeros(6) if imu is None else np.array(imu, dtype=float)
         return VariantEstimate(t_s, bank, np.array(controls, dtype=float), imu)
 
     def restart_from_fault_free(self, estimate: VariantEstimate) -> VariantEstimate:
-        """Re-seed every mode from the fault-free filter, at the prior mode probabilities.
+        """Re-seed every mode from the most probable one, keeping the mode probabilities.
 
         The paper initialises the mode-matched filters from the fault-free UKF's steady state
         (section 2.A); the service runs the bank through a settling period and then calls this.
-        A bank of one mode (UKF-1, UKF-2, UKF-3) has nothing to re-seed.
+        The seed is the filter of the most probable mode, fault-free unless the bank already
+        believes a channel failed: a channel the IMM calls failed is not trusted for it. A bank
+        of one mode (UKF-1, UKF-2, UKF-3) has nothing to re-seed.
         """
-        healthy = next((j for j, m in enumerate(self.modes) if m.bits == 0), None)
-        if healthy is None or len(self.modes) == 1:
+        if len(self.modes) == 1:
             return estimate
         bank = estimate.filter
+        seed = bank.most_likely_mode
         restarted = self.imm.initial_estimate(
-            bank.t_s,
-            bank.mode_means[healthy],
-            bank.mode_covs[healthy],
-            self.prior_probabilities(),
+            bank.t_s, bank.mode_means[seed], bank.mode_covs[seed], bank.mode_probabilities
         )
         return dataclasses.replace(estimate, filter=restarted)
+
+    def probabilities_believing(self, mode: FaultMode | None) -> np.ndarray:
+        """Mode probabilities to (re)start from when ``mode`` is believed (None: the prior).
+
+        A re-alignment must not forget a declared fault: the declared mode starts at 0.99.
+        """
+        prior = self.prior_probabilities()
+        if mode is None or mode not in self.modes:
+            return prior
+        probs = 0.01 * prior
+        probs[self.modes.index(mode)] += 0.99
+        return probs / probs.sum()
 
 
 @dataclass(frozen=True, eq=False)
@@ -225,11 +249,21 @@ class AircraftEstimator(_Bank):
     imm: ImmEstimator
     imu_model: MeasurementModel
     imu_gps_model: MeasurementModel
+    noise: SlowStateNoise
 
     def initial_estimate(
-        self, nav: NavSolution, controls: np.ndarray, imu: np.ndarray
+        self,
+        nav: NavSolution,
+        controls: np.ndarray,
+        imu: np.ndarray,
+        mode_probabilities: np.ndarray | None = None,
     ) -> VariantEstimate:
-        """Every mode starts from ``nav`` (e.g. :func:`align`); ``controls`` act from its time."""
+        """Every mode starts from ``nav`` (e.g. :func:`align`); ``controls`` act from its time.
+
+        The slow states start at zero with their initial sigmas; the GPS error is what
+        separates the fix ``nav`` took its position from and the true position, so the two
+        start fully anti-correlated.
+        """
         rot = body_to_ned(nav.euler_rad)
         mean = np.concatenate(
             [nav.position_ned_m, rot.T @ nav.velocity_ned_mps, nav.euler_rad, nav.rates_radps]
@@ -238,7 +272,23 @@ class AircraftEstimator(_Bank):
             [nav.position_sigma_m, nav.velocity_sigma_mps, nav.euler_sigma_rad,
              nav.rates_sigma_radps]
         )  # fmt: skip
-        return self.start(nav.t_s, mean, np.diag(sigma**2), controls, imu)
+        mean, cov = self.augmented(mean, np.diag(sigma**2))
+        errors = np.arange(N_RIGID + GPS_ERROR.start, N_RIGID + GPS_ERROR.stop)
+        gps_var = np.diagonal(cov)[errors]
+        cov[[0, 1, 2], [0, 1, 2]] += gps_var  # the fix is the true position plus its error
+        cov[[0, 1, 2], errors] = -gps_var
+        cov[errors, [0, 1, 2]] = -gps_var
+        return self.start(nav.t_s, mean, cov, controls, imu, mode_probabilities)
+
+    def augmented(self, mean: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """A 12-state rigid-body ``mean``, ``cov`` with the slow states appended (zero mean)."""
+        nx = self.imm.ukf.process.nx
+        full_mean = np.zeros(nx)
+        full_mean[:N_RIGID] = mean
+        full_cov = np.zeros((nx, nx))
+        full_cov[:N_RIGID, :N_RIGID] = cov
+        full_cov[N_RIGID:, N_RIGID:] = np.diag(self.noise.initial_sigma**2)
+        return full_mean, full_cov
 
     def step(
         self,
@@ -310,13 +360,22 @@ def build_aero_estimator(
         modes = (FaultMode(0),)
     else:
         raise ValueError(f"not an aerodynamic-model variant: {variant!r}")
-    process = aero_process_model(model, sensors, tuning)
+    noise = slow_state_noise(model.params, sensors, tuning)
+    augmented = AugmentedAeroModel(model, noise.decay_per_s)
+    process = aero_process_model(augmented, noise, sensors, tuning)
     ukf = UnscentedKalmanFilter(process, JulierSigmaPoints(kappa), noise_form, backend)
     transition = tuning.transition(modes)
     floor = tuning.probability_floor if len(modes) > 1 else 0.0
-    imm = ImmEstimator(ukf, transition, floor)
-    imu_model, imu_gps_model = aero_measurement_models(model, modes, sensors)
-    return AircraftEstimator(variant, tuple(modes), imm, imu_model, imu_gps_model)
+
+    def own_imu(t_s: float, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+        return augmented.imu(t_s, x, u[1])  # u is the pair [u(k), u(k+1)]
+
+    gate = ObservabilityGate(
+        modes, own_imu, np.diagonal(sensors.imu.noise_cov()), tuning.observability_sigmas
+    )
+    imm = ImmEstimator(ukf, transition, floor, gate if len(modes) > 1 else None)
+    imu_model, imu_gps_model = aero_measurement_models(augmented, modes, sensors)
+    return AircraftEstimator(variant, tuple(modes), imm, imu_model, imu_gps_model, noise)
 
 
 @dataclass(frozen=True, eq=False)
@@ -334,9 +393,13 @@ class InsEstimator(_Bank):
     modes: tuple[FaultMode, ...] = (FaultMode(0),)
 
     def initial_estimate(
-        self, nav: NavSolution, controls: np.ndarray, imu: np.ndarray
+        self,
+        nav: NavSolution,
+        controls: np.ndarray,
+        imu: np.ndarray,
+        mode_probabilities: np.ndarray | None = None,
     ) -> VariantEstimate:
-        """Start from ``nav`` (9 states); ``imu`` is the sample at its time."""
+        """Start from ``nav`` (9 states); ``imu`` is the sample at its time (one mode only)."""
         mean = np.concatenate([nav.position_ned_m, nav.velocity_ned_mps, nav.euler_rad])
         sigma = np.concatenate([nav.position_sigma_m, nav.velocity_sigma_mps, nav.euler_sigma_rad])
         return self.start(nav.t_s, mean, np.diag(sigma**2), controls, imu)

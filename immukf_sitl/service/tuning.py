@@ -3,39 +3,71 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from immukf_sitl.estimation import FaultMode
+from immukf_sitl.models.airframe import AirframeUncertainty
+from immukf_sitl.models.wind import TURBULENCE_LEVELS
 
 
 @dataclass(frozen=True)
 class FilterTuning:
-    """Process noise of the aerodynamic model and the IMM's Markov chain (eq. 3).
+    """The filter's design: the air and airframe it is built for, and the IMM's Markov chain.
 
-    ``process_noise_factor`` scales the IMU noise into the model's process noise ``v``: the
-    paper (section 3) uses two orders of magnitude; this project's model reproduces the JSBSim
-    aircraft far better than that (``immukf-sitl validate-model``), and an over-wide ``Q``
-    makes the fault-free filter's predictions of near-zero channels (p, q, r, y in steady
-    flight) more uncertain than a zeroed channel's, which hands the fault modes a likelihood
-    edge every step. Ten times the IMU noise is the measured compromise (see README).
+    Process noise of the aircraft model (every number below is a documented quantity, see
+    :mod:`immukf_sitl.service.noise_model`):
 
-    The chain is asymmetric on purpose. ``onset_probability`` is the chance per step that the
-    fault-free system develops a given fault; ``recovery_probability`` the chance per step that
-    a faulty mode hands back to fault-free. Whatever edge an unobservable fault mode keeps, a
-    recovery probability above it bounds its posterior odds near ``onset / recovery``, while a
-    fault that shows (a true value a few sigma from zero) wins within a few steps. Measured on
-    the default flight (seed 3, 30 s of fault-free flight after settling): recovery 0.05 let
-    the p mode reach 0.95 on the straight first leg, 0.15 kept every fault mode below 0.26,
-    0.25 below 0.07, while zeroed x, y, z, p, q, r gyros were still declared within 0.13 s of
-    becoming observable.
+    - ``process_noise_factor`` scales the IMU noise into the white part of the model's process
+      noise ``v`` (accelerations and angular accelerations the slow states do not carry);
+    - ``design_turbulence``, ``design_height_m``, ``design_airspeed_mps``: the MIL-F-8785C air
+      the wind states are built for (the worst the filter is meant to hold in);
+    - ``model_uncertainty``: how far the flown airframe may be from the parameter file (1-sigma
+      relative), which sizes the force and moment corrections; ``correction_time_constant_s``
+      how fast their error changes with the flight condition;
+    - ``initial_wind_sigma_mps``: what is known of the wind at start-up (nothing much).
+
+    The chain (eq. 3) is symmetric and sticky: ``onset_probability`` per step that a sensor
+    fails, ``recovery_probability`` per step that a failed one recovers. A mode's posterior odds
+    then move only with evidence, and the filter counts a failed channel's evidence only while
+    the channel is observable (:class:`~immukf_sitl.estimation.fault_modes.ObservabilityGate`):
+    a declared sensor that stays dead keeps its probability through a straight leg, and a sensor
+    that recovers is cleared as soon as it reads a value away from zero. From the floor at about
+    ``onset``, a fault mode needs ``log(0.9 / onset)`` (16 nats at 1e-7) of evidence to reach the
+    detector's threshold; an observable zeroed gyro gives hundreds per step. README, "Detection
+    and tuning", has the arithmetic.
     """
 
     process_noise_factor: float = 10.0
-    onset_probability: float = 1e-4
-    recovery_probability: float = 0.25
-    probability_floor: float = 1e-6
+    onset_probability: float = 1e-7
+    recovery_probability: float = 1e-7
+    probability_floor: float = 1e-9
+    design_turbulence: str = "moderate"
+    design_height_m: float = 150.0
+    design_airspeed_mps: float = 25.0
+    model_uncertainty: AirframeUncertainty = field(
+        default_factory=lambda: AirframeUncertainty(aero=0.10, mass=0.05, inertia=0.10)
+    )
+    correction_time_constant_s: float = 10.0
+    initial_wind_sigma_mps: float = 10.0
+    observability_sigmas: float = 3.0
+
+    def __post_init__(self) -> None:
+        if self.design_turbulence not in TURBULENCE_LEVELS:
+            raise ValueError(
+                f"design_turbulence: expected one of {', '.join(TURBULENCE_LEVELS)}, "
+                f"got {self.design_turbulence!r}"
+            )
+        positive = {
+            "process_noise_factor": self.process_noise_factor,
+            "design_airspeed_mps": self.design_airspeed_mps,
+            "correction_time_constant_s": self.correction_time_constant_s,
+            "initial_wind_sigma_mps": self.initial_wind_sigma_mps,
+        }
+        for name, value in positive.items():
+            if not value > 0.0:
+                raise ValueError(f"{name}: expected > 0, got {value}")
 
     def transition(self, modes: Sequence[FaultMode]) -> np.ndarray:
         """``T[i, j] = P(M(k+1)=j | M(k)=i)`` (eq. 3) over ``modes`` (fault-free first)."""
