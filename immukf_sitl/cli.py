@@ -26,6 +26,8 @@ SUBCOMMANDS: tuple[tuple[str, str, str], ...] = (
     ("serve", "immukf_sitl.mavlink.serve", "run the IMM-UKF estimator service on a MAVLink stream"),
     ("replay", "immukf_sitl.experiments.replay",
      "run the estimator over a recorded flight tlog and summarise"),
+    ("experiment", "immukf_sitl.experiments.experiment",
+     "run a Monte Carlo campaign of the paper's variants and fault sets; tables and report"),
     ("validate-model", "immukf_sitl.experiments.validate_model",
      "score the filter's aerodynamic model against a JSBSim manoeuvring flight"),
     ("bench", "immukf_sitl.experiments.bench", "time one IMM-UKF step (medians, ratios)"),

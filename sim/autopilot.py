@@ -110,6 +110,58 @@ class NavigationState:
         )
 
     @classmethod
+    def from_navigation(
+        cls,
+        time_s: float,
+        position_ned_m: np.ndarray,
+        alt_m: float,
+        velocity_ned_mps: np.ndarray,
+        euler_rad: np.ndarray,
+        rates_body_radps: np.ndarray,
+        wind_ned_mps: np.ndarray | None = None,
+    ) -> NavigationState:
+        """The navigation state of an estimator's navigation solution (flying closed loop).
+
+        Parameters
+        ----------
+        time_s : float
+            Time of the estimate (s).
+        position_ned_m : numpy.ndarray
+            ``(3,)`` NED position about the flight's origin (m).
+        alt_m : float
+            Height above the WGS-84 ellipsoid (m).
+        velocity_ned_mps : numpy.ndarray
+            ``(3,)`` NED velocity over the ground (m/s).
+        euler_rad : numpy.ndarray
+            ``(3,)`` roll, pitch, yaw (rad).
+        rates_body_radps : numpy.ndarray
+            ``(3,)`` body rates p, q, r (rad/s).
+        wind_ned_mps : numpy.ndarray, optional
+            ``(3,)`` estimated wind (m/s, NED, where it blows to); default none.
+
+        Returns
+        -------
+        NavigationState
+            Airspeed and sideslip from the air-relative velocity in body axes.
+        """
+        euler = np.asarray(euler_rad, dtype=float)
+        velocity = np.asarray(velocity_ned_mps, dtype=float)
+        air = velocity if wind_ned_mps is None else velocity - np.asarray(wind_ned_mps, float)
+        body = _rotation_nb(euler[0], euler[1], euler[2]).T @ air
+        airspeed = float(np.linalg.norm(body))
+        beta = math.asin(max(-1.0, min(1.0, body[1] / airspeed))) if airspeed > 0.0 else 0.0
+        return cls(
+            time_s=float(time_s),
+            position_ned_m=np.array(position_ned_m, dtype=float),
+            alt_m=float(alt_m),
+            velocity_ned_mps=velocity.copy(),
+            euler_rad=euler.copy(),
+            rates_body_radps=np.array(rates_body_radps, dtype=float),
+            airspeed_mps=airspeed,
+            beta_rad=beta,
+        )
+
+    @classmethod
     def from_state_vector(
         cls, time_s: float, state: np.ndarray, origin_alt_m: float
     ) -> NavigationState:
@@ -202,7 +254,10 @@ class AutopilotStatus:
     airspeed_cmd_mps, course_cmd_rad, roll_cmd_rad, pitch_cmd_rad : float
         Inner-loop commands.
     cross_track_m : float
-        Signed distance right of the active leg (m).
+        Signed distance right of the active leg (m), of the navigation state flown on.
+    leg_start_ne_m, leg_target_ne_m : tuple of float
+        ``(north, east)`` of the active leg's start and end (m): the desired path, against
+        which experiments measure the true aircraft (control error).
     """
 
     time_s: float
@@ -215,6 +270,8 @@ class AutopilotStatus:
     roll_cmd_rad: float
     pitch_cmd_rad: float
     cross_track_m: float
+    leg_start_ne_m: tuple[float, float] = (math.nan, math.nan)
+    leg_target_ne_m: tuple[float, float] = (math.nan, math.nan)
 
 
 @dataclass
@@ -419,6 +476,8 @@ class Autopilot:
             roll_cmd_rad=roll_cmd,
             pitch_cmd_rad=pitch_cmd,
             cross_track_m=cross_track,
+            leg_start_ne_m=(float(self._leg_start[0]), float(self._leg_start[1])),
+            leg_target_ne_m=(float(target[0]), float(target[1])),
         )
         controls = np.clip(np.array([delta_e, delta_a, delta_r, delta_t]), self._lower, self._upper)
         rate = np.array([g.surface_rate_radps] * 3 + [g.throttle_rate_ps]) * dt

@@ -3,10 +3,10 @@
 :class:`Flight` is the loop's state machine (start, then one :meth:`Flight.step` per 0.01 s);
 :func:`fly` runs it on truth navigation and yields the records. The SITL MAVLink emitter wraps a
 :class:`Flight`: per record it sends HIGHRES_IMU (``record.imu``), SERVO_OUTPUT_RAW
-(``record.controls``) and, when present, GPS_RAW_INT (``record.gps``). It flies on truth: a
+(``record.controls``) and, when present, GPS_RAW_INT (``record.gps``); it flies on truth. The
 closed loop, in which the autopilot flies on the estimator's
-:class:`~sim.autopilot.NavigationState` (``Flight.step(navigation=...)``), is supported here but
-not yet wired to the emitter or tested.
+:class:`~sim.autopilot.NavigationState` (``Flight.step(navigation=...)``), is what the in-process
+experiments fly (:mod:`immukf_sitl.experiments.inprocess`, ``immukf-sitl experiment``).
 
 Timing (see :mod:`sim.driver`): record ``k`` holds the true state at ``t_k``, the controls that
 act from ``t_k`` (so the forces, the IMU's specific force and the controls of one record belong

@@ -1,0 +1,493 @@
+"""Campaign files: a Monte Carlo study as a product of axes (YAML), expanded into runs.
+
+A wrong file gets one line naming the file, the field and what was expected
+(:class:`CampaignError`), as scenario files do. The schema, with every default::
+
+    name: paper                    # required, a label (the default --out-dir is results/<name>)
+    description: ...               # optional
+    seed: 2013                     # required: replicate r flies with the seed
+                                   # SeedSequence(seed, spawn_key=(r,)), so every variant and
+                                   # fault set of replicate r sees the same sensor noise
+    replicates: 5                  # required, >= 1 (the seeds axis: 0 .. replicates-1)
+    scenario: {...}                # required: a scenario mapping without name, seed and faults
+                                   # (flight plan, duration, start, sensors, manoeuvres), or
+                                   # the path of a scenario file, relative to this file
+    variants:                      # required: each variant and the fault sets it flies
+      ukf1: all_64                 # all_64 (the paper's Table 2) | single (none, x .. r) |
+      ukf2: all_64                 # a list of modes: [none, q, x+q]
+      ukf3: all_64
+      imm: single
+    fault_times_s: [5.0]           # optional axis (default [5.0]): when the channels go dead
+    loop: [closed]                 # optional axis: closed (autopilot on the estimate) | open
+                                   # (on truth)
+    air:                           # optional axis (default one entry: the scenario's own air)
+      - {name: still}              # name, then optional airframe: and wind: blocks as in a
+      - {name: windy, wind: {speed_mps: 6, from_deg: 270, turbulence: light}}  # scenario file
+    failure:                       # optional: the critical-failure criterion (docs/report.md)
+      lateral_m: 100               # true aircraft farther than this from the desired path
+      vertical_m: 30               # true height this far from the commanded altitude
+      ground_alt_m: 0              # true height above the ellipsoid below this: ground hit
+      estimate_position_m: 100     # estimate this far from truth: diverged
+      estimate_attitude_deg: 45    # roll/pitch/yaw error norm beyond this: diverged
+      stop: true                   # end a run at its first critical failure
+    figure: {variant: imm, fault: q}   # optional: the run re-flown for fig2.png
+
+The runs are the product, in this order: air, loop, fault time, variant (ukf1, ukf2, ukf3, imm),
+fault set (Table 2 order), replicate. A run's index is its place in that order; nothing random
+depends on it, so results do not depend on how many jobs run them.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from immukf_sitl.errors import UserError
+from immukf_sitl.estimation.fault_modes import FaultMode, all_fault_modes, single_fault_modes
+from immukf_sitl.scenario import FaultSpec, Scenario, ScenarioError, parse_scenario
+from immukf_sitl.service.filters import VARIANTS
+
+LOOPS = ("closed", "open")
+FAULT_SET_NAMES = ("all_64", "single")
+#: scenario fields a campaign sets itself
+_CAMPAIGN_SCENARIO_FIELDS = ("name", "seed", "faults", "expect")
+
+
+#: validated scenario blocks by (campaign digest, air name): a campaign of a thousand runs parses
+#: its scenario once per air entry
+_BASE_CACHE: dict[tuple[str, str], Scenario] = {}
+
+
+class CampaignError(UserError):
+    """A campaign file that cannot be used; the message is one line."""
+
+
+@dataclass(frozen=True)
+class FailureCriterion:
+    """When a run is a critical failure (the paper's Table 2 "x"); see docs/report.md."""
+
+    lateral_m: float = 100.0
+    vertical_m: float = 30.0
+    ground_alt_m: float = 0.0
+    estimate_position_m: float = 100.0
+    estimate_attitude_deg: float = 45.0
+    stop: bool = True
+
+
+@dataclass(frozen=True)
+class AirSpec:
+    """One entry of the ``air`` axis: a name and the scenario blocks it replaces."""
+
+    name: str
+    blocks: Mapping[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """One run of a campaign: everything a worker needs, picklable.
+
+    Attributes
+    ----------
+    index : int
+        Place in the campaign's order.
+    variant : str
+    mode : FaultMode
+        The zeroed channels (``none`` for a fault-free run).
+    replicate : int
+    seed : int
+        The scenario seed of this replicate.
+    fault_t_s : float
+    loop : str
+        ``closed`` or ``open``.
+    air : str
+        Name of the air entry.
+    scenario : Scenario
+        The flight, with its seed and fault.
+    failure : FailureCriterion
+    """
+
+    index: int
+    variant: str
+    mode: FaultMode
+    replicate: int
+    seed: int
+    fault_t_s: float
+    loop: str
+    air: str
+    scenario: Scenario
+    failure: FailureCriterion
+
+    @property
+    def run_id(self) -> str:
+        """A stable key of the run (``--resume`` matches rows by it)."""
+        return (
+            f"{self.variant}/{self.mode.name}/r{self.replicate}/t{self.fault_t_s:g}/"
+            f"{self.loop}/{self.air}"
+        )
+
+
+@dataclass(frozen=True)
+class FigureSpec:
+    """Which run ``fig2.png`` re-flies (the paper's Fig. 2: IMM under a q-gyro failure)."""
+
+    variant: str = "imm"
+    fault: str = "q"
+
+
+@dataclass(frozen=True)
+class Campaign:
+    """A validated campaign file."""
+
+    name: str
+    seed: int
+    replicates: int
+    scenario: Mapping[str, Any]
+    variants: tuple[tuple[str, tuple[FaultMode, ...]], ...]
+    fault_times_s: tuple[float, ...] = (5.0,)
+    loops: tuple[str, ...] = ("closed",)
+    air: tuple[AirSpec, ...] = (AirSpec("default"),)
+    failure: FailureCriterion = field(default_factory=FailureCriterion)
+    figure: FigureSpec = field(default_factory=FigureSpec)
+    description: str = ""
+    path: str = ""
+
+    @property
+    def digest(self) -> str:
+        """A hash of everything that decides the runs' results (``--resume`` checks it)."""
+        data = {
+            "seed": self.seed,
+            "scenario": self.scenario,
+            "fault_times_s": self.fault_times_s,
+            "air": [(a.name, a.blocks) for a in self.air],
+            "failure": self.failure.__dict__,
+        }
+        text = json.dumps(data, sort_keys=True, default=str)
+        return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+    def replicate_seed(self, replicate: int) -> int:
+        """The scenario seed of replicate ``replicate`` (child ``replicate`` of the seed)."""
+        sequence = np.random.SeedSequence(self.seed, spawn_key=(replicate,))
+        return int(sequence.generate_state(1)[0])
+
+    def scenario_for(
+        self, mode: FaultMode, replicate: int, fault_t_s: float, air: AirSpec
+    ) -> Scenario:
+        """The scenario of one run (its seed, air and fault)."""
+        base = self._base_scenario(air)
+        if fault_t_s >= base.duration_s:
+            raise CampaignError(
+                f"{self.path}: fault_times_s: expected times before the scenario's end "
+                f"({base.duration_s:g} s), got {fault_t_s:g}"
+            )
+        faults = ()
+        if mode.bits:
+            faults = (FaultSpec(t_s=fault_t_s, channels=mode.channels, kind="zero"),)
+        return dataclasses.replace(
+            base,
+            name=f"{self.name}-{mode.name}-r{replicate}",
+            seed=self.replicate_seed(replicate),
+            faults=faults,
+        )
+
+    def _base_scenario(self, air: AirSpec) -> Scenario:
+        """The scenario block with an air entry's blocks, validated (seed 0, no faults)."""
+        key = air.name
+        cached = _BASE_CACHE.get((self.digest, key))
+        if cached is not None:
+            return cached
+        data = dict(self.scenario)
+        data.update(air.blocks)
+        data.update(name=self.name, seed=0)
+        try:
+            scenario = parse_scenario(data, f"{self.path}: scenario (air {air.name})")
+        except ScenarioError as exc:
+            raise CampaignError(str(exc)) from None
+        _BASE_CACHE[(self.digest, key)] = scenario
+        return scenario
+
+    def runs(self) -> tuple[RunSpec, ...]:
+        """Every run, in the campaign's order."""
+        out: list[RunSpec] = []
+        for air in self.air:
+            for loop in self.loops:
+                for fault_t_s in self.fault_times_s:
+                    for variant, modes in self.variants:
+                        for mode in modes:
+                            for replicate in range(self.replicates):
+                                out.append(
+                                    RunSpec(
+                                        index=len(out),
+                                        variant=variant,
+                                        mode=mode,
+                                        replicate=replicate,
+                                        seed=self.replicate_seed(replicate),
+                                        fault_t_s=fault_t_s,
+                                        loop=loop,
+                                        air=air.name,
+                                        scenario=self.scenario_for(mode, replicate, fault_t_s, air),
+                                        failure=self.failure,
+                                    )
+                                )
+        return tuple(out)
+
+    def figure_run(self) -> RunSpec | None:
+        """The run ``fig2.png`` re-flies (first replicate, first of each axis), if any."""
+        try:
+            mode = FaultMode.from_name(self.figure.fault)
+        except ValueError:
+            return None
+        for variant, modes in self.variants:
+            if variant == self.figure.variant and mode in modes:
+                air, t_s = self.air[0], self.fault_times_s[0]
+                return RunSpec(
+                    index=-1,
+                    variant=variant,
+                    mode=mode,
+                    replicate=0,
+                    seed=self.replicate_seed(0),
+                    fault_t_s=t_s,
+                    loop=self.loops[0],
+                    air=air.name,
+                    scenario=self.scenario_for(mode, 0, t_s, air),
+                    failure=self.failure,
+                )
+        return None
+
+
+# -- parsing -------------------------------------------------------------------------------------
+
+
+class _Fields:
+    """One mapping of the file; every error names ``file: field``."""
+
+    def __init__(self, path: str, where: str, data: Any) -> None:
+        self.path, self.where = path, where
+        if not isinstance(data, Mapping):
+            self.fail("", "a mapping", data)
+        self.data = dict(data)
+        self.used: set[str] = set()
+
+    def name(self, key: str) -> str:
+        return f"{self.where}.{key}" if self.where else key
+
+    def fail(self, key: str, expected: str, got: Any) -> None:
+        where = self.name(key) if key else (self.where or "top level")
+        raise CampaignError(f"{self.path}: {where}: expected {expected}, got {got!r}")
+
+    def raw(self, key: str, default: Any = ...) -> Any:
+        self.used.add(key)
+        if key not in self.data:
+            if default is ...:
+                raise CampaignError(f"{self.path}: {self.name(key)}: required field is missing")
+            return default
+        return self.data[key]
+
+    def number(self, key: str, default: Any = ..., lo: float = -math.inf) -> float:
+        value = self.raw(key, default)
+        ok = isinstance(value, int | float) and not isinstance(value, bool)
+        if not ok or not math.isfinite(value) or value < lo:
+            self.fail(key, f"a number >= {lo:g}" if lo > -math.inf else "a number", value)
+        return float(value)
+
+    def integer(self, key: str, default: Any = ..., lo: int = 0) -> int:
+        value = self.raw(key, default)
+        if isinstance(value, bool) or not isinstance(value, int) or value < lo:
+            self.fail(key, f"an integer >= {lo}", value)
+        return int(value)
+
+    def string(self, key: str, default: Any = ...) -> str:
+        value = self.raw(key, default)
+        if not isinstance(value, str) or not value.strip():
+            self.fail(key, "a non-empty string", value)
+        return value
+
+    def done(self) -> None:
+        unknown = sorted(set(self.data) - self.used)
+        if unknown:
+            raise CampaignError(
+                f"{self.path}: {self.name(unknown[0])}: unknown field "
+                f"(expected one of {', '.join(sorted(self.used))})"
+            )
+
+
+def _fault_set(r: _Fields, variant: str, value: Any) -> tuple[FaultMode, ...]:
+    where = f"variants.{variant}"
+    if value == "all_64":
+        return all_fault_modes()
+    if value == "single":
+        return single_fault_modes()
+    expected = "all_64, single or a list of fault modes (none, q, x+q, ...)"
+    if not isinstance(value, list) or not value:
+        raise CampaignError(f"{r.path}: {where}: expected {expected}, got {value!r}")
+    modes = []
+    for item in value:
+        try:
+            mode = FaultMode.from_name(str(item))
+        except ValueError:
+            raise CampaignError(
+                f"{r.path}: {where}: expected fault modes such as none, q or x+q, got {item!r}"
+            ) from None
+        if mode in modes:
+            raise CampaignError(f"{r.path}: {where}: fault mode {mode.name} listed twice")
+        modes.append(mode)
+    order = {m: i for i, m in enumerate(all_fault_modes())}
+    return tuple(sorted(modes, key=order.__getitem__))
+
+
+def _variants(r: _Fields) -> tuple[tuple[str, tuple[FaultMode, ...]], ...]:
+    raw = r.raw("variants")
+    if not isinstance(raw, Mapping) or not raw:
+        r.fail("variants", f"a mapping of variants ({', '.join(VARIANTS)}) to fault sets", raw)
+    out = []
+    for variant in raw:
+        if variant not in VARIANTS:
+            raise CampaignError(
+                f"{r.path}: variants.{variant}: unknown variant "
+                f"(expected one of {', '.join(VARIANTS)})"
+            )
+        modes = _fault_set(r, variant, raw[variant])
+        if variant == "imm":
+            singles = set(single_fault_modes())
+            extra = [m.name for m in modes if m not in singles]
+            if extra:
+                raise CampaignError(
+                    f"{r.path}: variants.imm: the IMM's bank holds the 7 single modes; "
+                    f"got {extra[0]} (use ukf1 for multiple faults)"
+                )
+        out.append((variant, modes))
+    out.sort(key=lambda item: VARIANTS.index(item[0]))
+    return tuple(out)
+
+
+def _number_list(r: _Fields, key: str, default: list[float], lo: float) -> tuple[float, ...]:
+    value = r.raw(key, default)
+    if not isinstance(value, list):
+        value = [value]
+    ok = value and all(
+        isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v) and v >= lo
+        for v in value
+    )
+    if not ok or len(set(value)) != len(value):
+        r.fail(key, f"a list of distinct numbers >= {lo:g}", value)
+    return tuple(float(v) for v in value)
+
+
+def _loops(r: _Fields) -> tuple[str, ...]:
+    value = r.raw("loop", ["closed"])
+    if isinstance(value, str):
+        value = [value]
+    if (
+        not isinstance(value, list)
+        or not value
+        or any(v not in LOOPS for v in value)
+        or len(set(value)) != len(value)
+    ):
+        r.fail("loop", "closed, open or a list of both", value)
+    return tuple(value)
+
+
+def _air(r: _Fields) -> tuple[AirSpec, ...]:
+    value = r.raw("air", None)
+    if value is None:
+        return (AirSpec("default"),)
+    if not isinstance(value, list) or not value:
+        r.fail("air", "a list of {name, airframe, wind} entries", value)
+    out = []
+    for i, item in enumerate(value):
+        entry = _Fields(r.path, f"air[{i}]", item)
+        name = entry.string("name")
+        blocks = {k: entry.raw(k) for k in ("airframe", "wind") if k in entry.data}
+        entry.done()
+        if any(a.name == name for a in out):
+            entry.fail("name", "a name no other entry has", name)
+        out.append(AirSpec(name, blocks))
+    return tuple(out)
+
+
+def _failure(r: _Fields) -> FailureCriterion:
+    f = _Fields(r.path, "failure", r.raw("failure", {}) or {})
+    d = FailureCriterion()
+    stop = f.raw("stop", d.stop)
+    if not isinstance(stop, bool):
+        f.fail("stop", "true or false", stop)
+    out = FailureCriterion(
+        lateral_m=f.number("lateral_m", d.lateral_m, lo=1.0),
+        vertical_m=f.number("vertical_m", d.vertical_m, lo=1.0),
+        ground_alt_m=f.number("ground_alt_m", d.ground_alt_m),
+        estimate_position_m=f.number("estimate_position_m", d.estimate_position_m, lo=1.0),
+        estimate_attitude_deg=f.number("estimate_attitude_deg", d.estimate_attitude_deg, lo=1.0),
+        stop=stop,
+    )
+    f.done()
+    return out
+
+
+def _scenario_block(r: _Fields) -> Mapping[str, Any]:
+    value = r.raw("scenario")
+    if isinstance(value, str):
+        path = Path(r.path).parent / value
+        try:
+            value = yaml.safe_load(path.read_text(encoding="utf-8"))
+        except OSError:
+            raise CampaignError(f"{r.path}: scenario: no such scenario file {value!r}") from None
+        except yaml.YAMLError:
+            raise CampaignError(f"{r.path}: scenario: {value!r} is not valid YAML") from None
+    if not isinstance(value, Mapping):
+        r.fail("scenario", "a scenario mapping or the path of a scenario file", value)
+    return {k: v for k, v in value.items() if k not in _CAMPAIGN_SCENARIO_FIELDS}
+
+
+def parse_campaign(data: Any, path: str = "<campaign>") -> Campaign:
+    """Validate parsed YAML into a :class:`Campaign`; raises :class:`CampaignError`."""
+    r = _Fields(path, "", data)
+    figure_f = _Fields(path, "figure", r.raw("figure", {}) or {})
+    figure = FigureSpec(
+        variant=figure_f.string("variant", "imm"), fault=figure_f.string("fault", "q")
+    )
+    figure_f.done()
+    campaign = Campaign(
+        name=r.string("name"),
+        description=r.string("description", "") if "description" in r.data else "",
+        seed=r.integer("seed"),
+        replicates=r.integer("replicates", lo=1),
+        scenario=_scenario_block(r),
+        variants=_variants(r),
+        fault_times_s=_number_list(r, "fault_times_s", [5.0], lo=0.0),
+        loops=_loops(r),
+        air=_air(r),
+        failure=_failure(r),
+        figure=figure,
+        path=path,
+    )
+    r.done()
+    for air in campaign.air:  # every air entry and fault time must make a valid scenario
+        for t_s in campaign.fault_times_s:
+            campaign.scenario_for(FaultMode.from_name("q"), 0, t_s, air)
+    return campaign
+
+
+def load_campaign(path: str | Path) -> Campaign:
+    """Read and validate a campaign file; raises :class:`CampaignError` with one line."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise CampaignError(f"{path}: no such campaign file") from None
+    except (OSError, UnicodeDecodeError):
+        raise CampaignError(f"{path}: cannot read it as a text file") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f" at line {mark.line + 1}" if mark is not None else ""
+        raise CampaignError(f"{path}: not valid YAML{where}") from None
+    return parse_campaign(data, str(path))

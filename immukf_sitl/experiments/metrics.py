@@ -1,0 +1,200 @@
+"""Per-run metrics of a campaign, as the paper defines them, and the critical-failure criterion.
+
+Definitions (docs/report.md repeats them for readers of the tables):
+
+- **Window.** Every error counts from the end of the settling period after the filter's first
+  estimate (3 s by default, the pipeline's ``settle_s``) to the end of the flight.
+- **Estimate error**: position as the distance between the estimate and the true aircraft (m);
+  attitude as the norm of the wrapped roll, pitch and yaw errors (deg). Max and mean square.
+- **Control error**: the true aircraft against what the autopilot was asked to fly. Position:
+  the distance from the desired path, ``hypot(cross-track from the active leg, height minus the
+  autopilot's altitude reference)`` (m). Attitude: the norm of the true roll and pitch minus the
+  autopilot's roll and pitch commands (deg); the autopilot commands no yaw (its lateral loop
+  commands a course, then a roll), so yaw has no commanded value. Max and mean square.
+- **Critical failure** (the paper's Table 2 "x"), the first of, from the end of the settling
+  period: *corridor* (the true aircraft more than ``lateral_m`` from the desired path or
+  ``vertical_m`` from the altitude reference), *ground* (true height below ``ground_alt_m``),
+  *diverged* (the estimate more than ``estimate_position_m`` or ``estimate_attitude_deg`` from
+  truth, or no estimate for more than a second: the pipeline dropped a diverged one). A run
+  with none of them is *stable* ("maintain flight").
+- **IMM figures**: the detection delay counts from the later of the fault and the moment it
+  became observable (README "What to expect in steady flight"); a run *identifies* its fault
+  when the first declaration at or after the fault names the true mode (a fault-free run: no
+  declaration at all); false declarations are those of a mode other than the active one.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from immukf_sitl.experiments.campaign import FailureCriterion, RunSpec
+from immukf_sitl.experiments.inprocess import InProcessRun
+from sim.autopilot import NavigationState, wrap_angle_rad
+from sim.flight import FlightRecord
+
+#: an estimate older than this (s) means the pipeline stopped publishing (diverged, re-aligning)
+STALE_ESTIMATE_S = 1.0
+
+
+def path_errors_m(record: FlightRecord) -> tuple[float, float]:
+    """``(cross-track, height error)`` of the true aircraft against the desired path (m).
+
+    Parameters
+    ----------
+    record : FlightRecord
+        A record with autopilot commands (not step 0).
+
+    Returns
+    -------
+    tuple of float
+        Signed distance right of the active leg, and true height minus the altitude reference.
+    """
+    status = record.autopilot
+    assert status is not None
+    start = np.array(status.leg_start_ne_m)
+    leg = np.array(status.leg_target_ne_m) - start
+    chi = math.atan2(leg[1], leg[0])
+    offset = record.truth.position_ned_m[:2] - start
+    cross = -math.sin(chi) * offset[0] + math.cos(chi) * offset[1]
+    return cross, record.truth.alt_m - status.altitude_ref_m
+
+
+def attitude_control_error_deg(record: FlightRecord) -> np.ndarray:
+    """True roll and pitch minus the autopilot's roll and pitch commands (deg, wrapped)."""
+    status = record.autopilot
+    assert status is not None
+    euler = record.truth.euler_rad
+    return np.degrees(
+        [
+            wrap_angle_rad(float(euler[0]) - status.roll_cmd_rad),
+            wrap_angle_rad(float(euler[1]) - status.pitch_cmd_rad),
+        ]
+    )
+
+
+def estimate_errors(record: FlightRecord, nav: NavigationState) -> tuple[float, float]:
+    """``(position error m, attitude error deg)`` of an estimate against the record's truth."""
+    truth = record.truth
+    position = float(np.linalg.norm(nav.position_ned_m - truth.position_ned_m))
+    diff = [
+        wrap_angle_rad(float(a - b)) for a, b in zip(nav.euler_rad, truth.euler_rad, strict=True)
+    ]
+    return position, math.degrees(math.sqrt(sum(d * d for d in diff)))
+
+
+class FailureMonitor:
+    """The critical-failure criterion as a per-step check (a :data:`StopCheck`).
+
+    Parameters
+    ----------
+    criterion : FailureCriterion
+    settle_s : float
+        Checks start this long after the first estimate.
+    """
+
+    def __init__(self, criterion: FailureCriterion, settle_s: float) -> None:
+        self.criterion = criterion
+        self.settle_s = settle_s
+        self.first_estimate_s: float | None = None
+        self.reason: str | None = None
+        self.t_s: float | None = None
+
+    def __call__(self, record: FlightRecord, nav: NavigationState | None) -> str | None:
+        """The failure this step shows (once one is found, it stops the flight if asked to)."""
+        if nav is None or self.reason is not None:
+            return None
+        if self.first_estimate_s is None:
+            self.first_estimate_s = nav.time_s
+        if record.time_s < self.first_estimate_s + self.settle_s or record.autopilot is None:
+            return None
+        reason = self._check(record, nav)
+        if reason is None:
+            return None
+        self.reason, self.t_s = reason, record.time_s
+        return reason if self.criterion.stop else None
+
+    def _check(self, record: FlightRecord, nav: NavigationState) -> str | None:
+        c = self.criterion
+        if record.truth.alt_m < c.ground_alt_m:
+            return "ground"
+        cross, height = path_errors_m(record)
+        if abs(cross) > c.lateral_m or abs(height) > c.vertical_m:
+            return "corridor"
+        position, attitude = estimate_errors(record, nav)
+        stale = record.time_s - nav.time_s > STALE_ESTIMATE_S
+        if position > c.estimate_position_m or attitude > c.estimate_attitude_deg or stale:
+            return "diverged"
+        return None
+
+
+@dataclass(frozen=True)
+class ErrorStats:
+    """Max and mean square of an error over the window."""
+
+    max: float
+    mse: float
+
+    @classmethod
+    def of(cls, values: np.ndarray) -> ErrorStats:
+        """Of the non-negative magnitudes ``values`` (nan when empty)."""
+        if values.size == 0:
+            return cls(math.nan, math.nan)
+        return cls(float(np.max(values)), float(np.mean(values**2)))
+
+
+def _window(run: InProcessRun, settle_s: float) -> list[tuple[FlightRecord, NavigationState]]:
+    first = next((nav.time_s for nav in run.estimates if nav is not None), None)
+    if first is None:
+        return []
+    return [
+        (rec, nav)
+        for rec, nav in zip(run.records, run.estimates, strict=True)
+        if nav is not None and rec.autopilot is not None and rec.time_s >= first + settle_s
+    ]
+
+
+def error_metrics(run: InProcessRun, settle_s: float) -> dict[str, float]:
+    """Estimate and control errors (max and MSE; m, m^2, deg, deg^2) of a flight."""
+    window = _window(run, settle_s)
+    est = np.array([estimate_errors(rec, nav) for rec, nav in window]).reshape(-1, 2)
+    path = np.array([path_errors_m(rec) for rec, _ in window]).reshape(-1, 2)
+    att = np.array([attitude_control_error_deg(rec) for rec, _ in window]).reshape(-1, 2)
+    out = {}
+    for name, values in (
+        ("est_pos", est[:, 0]),
+        ("est_att", est[:, 1]),
+        ("ctrl_pos", np.hypot(path[:, 0], path[:, 1])),
+        ("ctrl_att", np.sqrt(np.sum(att**2, axis=1))),
+    ):
+        stats = ErrorStats.of(values)
+        unit = "m" if name.endswith("pos") else "deg"
+        out[f"{name}_max_{unit}"] = stats.max
+        out[f"{name}_mse_{unit}2"] = stats.mse
+    return out
+
+
+def identification_metrics(spec: RunSpec, run: InProcessRun) -> dict[str, object]:
+    """Detection delay, identified mode and false declarations of a run (IMM figures)."""
+    summary = run.summary()
+    outcome = summary.faults[0] if summary.faults else None
+    after = [e for e in summary.detections if e.t_s >= spec.fault_t_s - 1e-9]
+    if spec.mode.bits:
+        identified = after[0].mode.name if after else "none"
+        correct = identified == spec.mode.name
+    else:
+        identified = summary.detections[0].mode.name if summary.detections else "none"
+        correct = not summary.detections
+    delay = None if outcome is None else outcome.detection_delay_s
+    return {
+        "observable_t_s": None if outcome is None else outcome.observable_t_s,
+        "detected_t_s": None if outcome is None else outcome.detected_t_s,
+        "detection_delay_s": delay,
+        "identified": identified,
+        "identified_ok": correct,
+        "identified_within_1s": correct
+        and (not spec.mode.bits or (delay is not None and delay <= 1.0)),
+        "false_declarations": len(summary.false_alarms),
+    }
