@@ -40,7 +40,6 @@ depends on it, so results do not depend on how many jobs run them.
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import json
 import math
 from collections.abc import Mapping
@@ -162,7 +161,11 @@ class Campaign:
 
     @property
     def digest(self) -> str:
-        """A hash of everything that decides the runs' results (``--resume`` checks it)."""
+        """Everything that decides the runs' results, as canonical JSON (``--resume`` checks it).
+
+        The variants, fault sets, replicates and loops are not in it: they choose which runs
+        there are, and a run's row is found by its ``run_id``.
+        """
         data = {
             "seed": self.seed,
             "scenario": self.scenario,
@@ -170,8 +173,7 @@ class Campaign:
             "air": [(a.name, a.blocks) for a in self.air],
             "failure": self.failure.__dict__,
         }
-        text = json.dumps(data, sort_keys=True, default=str)
-        return hashlib.sha256(text.encode()).hexdigest()[:16]
+        return json.dumps(data, sort_keys=True, default=str)
 
     def replicate_seed(self, replicate: int) -> int:
         """The scenario seed of replicate ``replicate`` (child ``replicate`` of the seed)."""
