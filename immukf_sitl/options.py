@@ -286,6 +286,8 @@ class RunOptions:
         Keep ``sim.tlog`` and ``proxy.tlog``.
     verbose : bool
         Echo the children's stderr.
+    realtime_priority : int or None
+        Run ``serve`` under SCHED_FIFO at this priority.
     sign : bool
         Sign every link of the chain with a key made for this run (``OUT_DIR/signing.key``).
     signing_key_path : str or None
@@ -302,6 +304,7 @@ class RunOptions:
     truth_hz: float | None = None
     keep_intermediate: bool = False
     verbose: bool = False
+    realtime_priority: int | None = None
     sign: bool = False
     signing_key_path: str | None = None
     filter: FilterOptions = field(default_factory=FilterOptions)
@@ -343,6 +346,13 @@ class RunOptions:
             help="keep sim.tlog and proxy.tlog beside the merged flight.tlog",
         )
         parser.add_argument("--verbose", action="store_true", help="echo the children's stderr")
+        parser.add_argument(
+            "--realtime-priority",
+            type=int,
+            default=None,
+            metavar="PRIO",
+            help="run serve under SCHED_FIFO at PRIO (1-99; needs CAP_SYS_NICE)",
+        )
         parser.add_argument(
             "--sign",
             action="store_true",

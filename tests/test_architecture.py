@@ -85,11 +85,10 @@ CONFINED = {
     "argparse": ("immukf_sitl/cli.py", "immukf_sitl/options.py", "immukf_sitl/mavlink/serve.py",
                  "immukf_sitl/experiments/", "sim/emitter.py", "sim/fault_proxy.py",
                  "sim/aircraft_xml.py"),
-    # MAVLink 2 signing is pymavlink's (immukf_sitl/mavlink/signing.py drives it): no module
-    # of the product computes a MAC of its own
-    "hmac": (),
-    "hashlib": (),
 }  # fmt: skip
+#: MAVLink 2 signing is pymavlink's (immukf_sitl/mavlink/signing.py drives it): nothing on the
+#: wire side computes a digest or MAC of its own.
+NO_OWN_MAC = {"hmac", "hashlib"}
 #: What the MAVLink adapter hands out that is pymavlink itself (the module, its message class).
 PYMAVLINK_NAMES = {"mavlink", "mavutil"}
 ADAPTER_SHELLS = ("immukf_sitl/mavlink/", "sim/emitter.py", "sim/fault_proxy.py")
@@ -143,6 +142,14 @@ def test_confined_libraries_stay_where_they_belong(path: Path) -> None:
                 f"{rel} takes pymavlink ({sorted(PYMAVLINK_NAMES & set(names))}) from the "
                 "adapter: convert messages in immukf_sitl.mavlink instead"
             )
+
+
+@pytest.mark.parametrize(
+    "path", [p for p in PRODUCT if _rel(p).startswith(ADAPTER_SHELLS)], ids=_rel
+)
+def test_signing_is_pymavlinks_own(path: Path) -> None:
+    own = sorted({m.split(".")[0] for m, _ in _imports(path)} & NO_OWN_MAC)
+    assert not own, f"{_rel(path)} imports {own}: sign and check with pymavlink's signing"
 
 
 def test_the_rules_cover_every_module_and_catch_a_violation(tmp_path: Path) -> None:

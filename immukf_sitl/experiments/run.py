@@ -128,6 +128,8 @@ def fly_chain(scenario: Scenario, options: RunOptions, files: RunFiles) -> Chain
                   *options.filter.to_argv()]  # fmt: skip
     for gcs in options.gcs:
         serve_argv += ["--out", gcs]
+    if options.realtime_priority is not None:
+        serve_argv += ["--realtime-priority", str(options.realtime_priority)]
     proxy_argv = ["proxy", options.scenario_path, "--in", f"udpin:127.0.0.1:{p_proxy}",
                   "--out", f"udpout:127.0.0.1:{p_est}", "--tlog", str(files.proxy_tlog),
                   "--json"]  # fmt: skip

@@ -25,6 +25,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import select
 import signal
 import struct
@@ -552,10 +553,30 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         metavar="S",
         help="sim seconds per entry of 'windows' (step time, lag) in --json (default %(default)s)",
     )
+    parser.add_argument(
+        "--realtime-priority",
+        type=int,
+        default=None,
+        metavar="PRIO",
+        help="run under SCHED_FIFO at PRIO (1-99; Linux, needs CAP_SYS_NICE): the filter step "
+        "preempts ordinary processes as flight software's would (README 'Latency')",
+    )
     add_signing_argument(parser)
     add_json_argument(parser, "the statistics at exit")
     FilterOptions.add_arguments(parser)
     parser.set_defaults(handler=_main)
+
+
+def _set_realtime_priority(priority: int) -> None:
+    """SCHED_FIFO at ``priority`` for this process; a one-line error where it is not allowed."""
+    if not 1 <= priority <= 99:
+        raise UserError(f"--realtime-priority: expected 1..99, got {priority}")
+    if not hasattr(os, "sched_setscheduler"):
+        raise UserError("--realtime-priority: SCHED_FIFO is not available on this platform")
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+    except PermissionError:
+        raise UserError("--realtime-priority: not permitted (needs CAP_SYS_NICE)") from None
 
 
 def _main(args: argparse.Namespace) -> int:
@@ -598,6 +619,8 @@ def _main(args: argparse.Namespace) -> int:
         file=sys.stderr,
         flush=True,
     )
+    if args.realtime_priority is not None:
+        _set_realtime_priority(args.realtime_priority)
     service.run(idle_exit_s=args.idle_exit)
     print(service.stats_line(), file=sys.stderr)
     if args.json:
