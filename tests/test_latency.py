@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from immukf_sitl.cli import main as cli_main
 from immukf_sitl.mavlink.codec import euler_to_quaternion
 from immukf_sitl.mavlink.serve import DurationHistogram, SimTimeWindows, lag_statistics
 from immukf_sitl.mavlink.wire import DatagramReader, connect
@@ -64,3 +65,10 @@ def test_closed_form_quaternion_is_scipys() -> None:
     for euler in rng.uniform([-np.pi, -1.5, -np.pi], [np.pi, 1.5, np.pi], (500, 3)):
         x, y, z, w = Rotation.from_euler("ZYX", euler[::-1]).as_quat()
         np.testing.assert_allclose(euler_to_quaternion(euler), [w, x, y, z], atol=1e-15)
+
+
+def test_a_realtime_priority_out_of_range_is_one_line(capsys) -> None:
+    assert cli_main(["serve", "--realtime-priority", "120"]) == 2
+    assert capsys.readouterr().err.strip() == (
+        "immukf-sitl serve: error: --realtime-priority: expected 1..99, got 120"
+    )

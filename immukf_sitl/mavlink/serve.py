@@ -569,8 +569,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def _set_realtime_priority(priority: int) -> None:
     """SCHED_FIFO at ``priority`` for this process; a one-line error where it is not allowed."""
-    if not 1 <= priority <= 99:
-        raise UserError(f"--realtime-priority: expected 1..99, got {priority}")
     if not hasattr(os, "sched_setscheduler"):
         raise UserError("--realtime-priority: SCHED_FIFO is not available on this platform")
     try:
@@ -581,6 +579,8 @@ def _set_realtime_priority(priority: int) -> None:
 
 def _main(args: argparse.Namespace) -> int:
     signing = LinkSigning(load_key(args.signing_key)) if args.signing_key else None
+    if args.realtime_priority is not None and not 1 <= args.realtime_priority <= 99:
+        raise UserError(f"--realtime-priority: expected 1..99, got {args.realtime_priority}")
     options = FilterOptions.from_args(args)
     pipeline = options.pipeline()
     out_urls = args.out_url or [DEFAULT_OUT]
