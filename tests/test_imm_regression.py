@@ -50,7 +50,7 @@ def run_bank(form: str, model_backend: str) -> dict[str, np.ndarray]:
     model = AeroModel(params, ORIGIN, backend=model_backend)
     est = build_aero_estimator("imm", model, noise_form=form)
     assert est.imm.ukf.backend == "numba"
-    estimate = est.start(0.0, data.x0, initial_cov(), data.controls[0])
+    estimate = est.start(0.0, *est.augmented(data.x0, initial_cov()), data.controls[0])
     rows: dict[str, list[np.ndarray]] = {
         "mean": [], "cov_diag": [], "mode_probabilities": [], "log_likelihoods": [], "nis": []
     }  # fmt: skip

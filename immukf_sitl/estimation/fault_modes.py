@@ -198,10 +198,7 @@ class ObservabilityGate:
     def _failed(self) -> list[tuple[int, int]]:
         """``(mode index, channel index)`` of every failed channel of every faulty mode."""
         return [
-            (j, i)
-            for j, mode in enumerate(self.modes)
-            for i in range(N_IMU)
-            if mode.bits >> i & 1
+            (j, i) for j, mode in enumerate(self.modes) for i in range(N_IMU) if mode.bits >> i & 1
         ]
 
     @cached_property

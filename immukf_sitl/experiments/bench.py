@@ -75,7 +75,7 @@ def initial_cov() -> np.ndarray:
 def time_ours(model: AeroModel, data: BenchData, form: str, warmup: int) -> dict:
     """Per-step times of our 7-mode IMM in one noise form."""
     est = build_aero_estimator("imm", model, noise_form=form)
-    estimate = est.start(0.0, data.x0, initial_cov(), data.controls[0])
+    estimate = est.start(0.0, *est.augmented(data.x0, initial_cov()), data.controls[0])
     times_ns = []
     gps_times_ns = []
     first_ns = 0
@@ -108,30 +108,33 @@ def time_filterpy(model: AeroModel, data: BenchData, n_steps: int) -> dict:
     from filterpy.kalman import IMMEstimator, MerweScaledSigmaPoints, UnscentedKalmanFilter
 
     from immukf_sitl.estimation import single_fault_modes, sticky_transition
-    from immukf_sitl.service.filters import aero_process_model
 
-    process = aero_process_model(model, SensorSpec())
+    ours = build_aero_estimator("imm", model, noise_form="additive")
+    process = ours.imm.ukf.process
+    imu_model = ours.imu_model
+    x0, cov0 = ours.augmented(data.x0, initial_cov())
     current = {"u_prev": data.controls[0], "u": data.controls[0]}
     filters = []
-    for mode in single_fault_modes():
-        mask = mode.healthy_mask
+    for j, _mode in enumerate(single_fault_modes()):
 
-        def hx(x: np.ndarray, mask: np.ndarray = mask) -> np.ndarray:
-            return mask * model.imu(0.0, x, current["u"])
+        def hx(x: np.ndarray, j: int = j) -> np.ndarray:
+            batch = np.repeat(x[:, None, None], len(ours.modes), axis=1)
+            pair = np.array([current["u_prev"], current["u"]])
+            return imu_model.g(0.0, batch, pair, None)[:, j, 0]
 
         def fx(x: np.ndarray, dt: float) -> np.ndarray:
-            return model.step(0.0, x, current["u_prev"])
+            return process.f(0.0, x, np.array([current["u_prev"], current["u"]]), None)
 
         ukf = UnscentedKalmanFilter(
-            dim_x=12,
+            dim_x=process.nx,
             dim_z=6,
             dt=model.dt_s,
             hx=hx,
             fx=fx,
-            points=MerweScaledSigmaPoints(12, alpha=1.0, beta=0.0, kappa=0.0),
+            points=MerweScaledSigmaPoints(process.nx, alpha=1.0, beta=0.0, kappa=0.0),
         )
-        ukf.x = data.x0.copy()
-        ukf.P = initial_cov()
+        ukf.x = x0.copy()
+        ukf.P = cov0.copy()
         ukf.Q = process.additive_noise_cov.copy()
         ukf.R = SensorSpec().imu.noise_cov()
         filters.append(ukf)

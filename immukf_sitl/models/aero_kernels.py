@@ -423,7 +423,9 @@ def air_relative(x: np.ndarray, e: np.ndarray, xa: np.ndarray) -> None:
     sph, cph = np.sin(x[6]), np.cos(x[6])
     sth, cth = np.sin(x[7]), np.cos(x[7])
     sps, cps = np.sin(x[8]), np.cos(x[8])
-    w_u, w_v, w_w = rotate_ned_to_body(e[WIND_N], e[WIND_E], e[WIND_D], sph, cph, sth, cth, sps, cps)
+    w_u, w_v, w_w = rotate_ned_to_body(
+        e[WIND_N], e[WIND_E], e[WIND_D], sph, cph, sth, cth, sps, cps
+    )
     for i in range(12):
         xa[i] = x[i]
     xa[3] = x[3] - w_u
@@ -498,7 +500,7 @@ def rk4_step(
     xa: np.ndarray,
     out: np.ndarray,
 ) -> None:
-    """Classical RK4 of ``x[0:12]`` over ``dt`` with u, v and e held, into ``out``; phi, psi wrapped.
+    """Classical RK4 of ``x[0:12]`` over ``dt``, u, v and e held, into ``out``; phi, psi wrapped.
 
     ``xt``, ``kk``, ``acc``, ``xa`` (12 rows) and ``fm`` (6 rows) are scratch.
     """

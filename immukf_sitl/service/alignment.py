@@ -43,15 +43,90 @@ def body_to_ned(euler_rad: np.ndarray) -> np.ndarray:
     return Rotation.from_euler("ZYX", np.asarray(euler_rad)[::-1]).as_matrix()
 
 
-def align(t_s: float, imu: np.ndarray, gps: np.ndarray) -> NavSolution:
+#: Specific force of unaccelerated flight differs from gravity by less than this fraction; an
+#: accelerometer triad further off has a dead channel (or the aircraft is manoeuvring hard).
+GRAVITY_TOLERANCE = 0.3
+#: Gravity used to rebuild a dead accelerometer channel (m/s^2).
+STANDARD_GRAVITY_MPS2 = 9.80665
+
+
+def dead_accelerometer(specific_force_mps2: np.ndarray) -> int | None:
+    """The accelerometer channel that reads zero when the triad cannot be gravity, else None.
+
+    In unaccelerated flight the accelerometers read ``-R_bn g``: a norm near ``g``. A zeroed
+    channel whose true value is large (z in level flight reads -9.8) breaks that. Each channel
+    is tried as the dead one, rebuilt (:func:`_rebuilt_gravity`), and the one giving the
+    attitude nearest upright and level wins. A zeroed channel whose true value is small breaks
+    nothing, and the full triad's attitude is still right.
+    """
+    f = np.asarray(specific_force_mps2, dtype=float)
+    norm = float(np.linalg.norm(f))
+    if abs(norm - STANDARD_GRAVITY_MPS2) <= GRAVITY_TOLERANCE * STANDARD_GRAVITY_MPS2:
+        return None
+    best, best_tilt = None, np.inf
+    for channel in range(3):
+        rebuilt = _rebuilt_gravity(f, channel)
+        g = float(np.linalg.norm(rebuilt))
+        if abs(g - STANDARD_GRAVITY_MPS2) > GRAVITY_TOLERANCE * STANDARD_GRAVITY_MPS2:
+            continue  # this channel's true value cannot make up the missing gravity
+        tilt = abs(np.arcsin(np.clip(rebuilt[0] / g, -1.0, 1.0))) + abs(
+            np.arctan2(-rebuilt[1], -rebuilt[2])
+        )
+        if tilt < best_tilt:
+            best, best_tilt = channel, tilt
+    return best
+
+
+def _rebuilt_gravity(f: np.ndarray, dead: int) -> np.ndarray:
+    """``f`` with the dead channel rebuilt as unaccelerated, upright, coordinated flight reads it.
+
+    ``f_y`` is 0 (coordinated flight: no side force); ``f_z`` and ``f_x`` take what makes
+    ``|f| = g``, ``f_z`` negative (upright) and ``f_x`` positive (nose above the horizon by
+    about the angle of attack: the pitch of level flight).
+    """
+    rebuilt = f.copy()
+    if dead == 1:
+        rebuilt[1] = 0.0
+        return rebuilt
+    rest = float(np.sum(np.delete(f, dead) ** 2))
+    magnitude = float(np.sqrt(max(STANDARD_GRAVITY_MPS2**2 - rest, 0.0)))
+    rebuilt[dead] = -magnitude if dead == 2 else magnitude
+    return rebuilt
+
+
+def align(
+    t_s: float,
+    imu: np.ndarray,
+    gps: np.ndarray,
+    failed_channels: tuple[str, ...] = (),
+) -> NavSolution:
     """A coarse in-flight alignment from one IMU sample and one GPS fix.
 
     Roll and pitch from the specific force of unaccelerated flight (``f = -R_bn g``:
     ``theta = asin(f_x / |f|)``, ``phi = atan2(-f_y, -f_z)``), yaw from the GPS course (no wind,
     small sideslip), NED velocity from ground speed and course (vertical unknown: 0), rates from
     the gyros. The sigmas say how rough that is.
+
+    A channel in ``failed_channels`` (the IMM's declared fault, ``x``...``r``) is not trusted,
+    and neither is an accelerometer triad that cannot be gravity (:func:`dead_accelerometer`,
+    at start-up nothing is declared yet): a dead accelerometer is rebuilt from ``|f| = g`` on
+    the upright branch, a dead gyro's rate starts at zero with a sigma of a manoeuvre's rate.
     """
-    f = imu[:3]
+    f = np.array(imu[:3], dtype=float)
+    rates = np.array(imu[3:6], dtype=float)
+    euler_sigma = np.radians([3.0, 3.0, 5.0])
+    rates_sigma = np.full(3, 0.003)  # straight from the gyros
+    dead = [i for i, c in enumerate("xyz") if c in failed_channels]
+    detected = dead_accelerometer(f)
+    if not dead and detected is not None:
+        dead = [detected]
+    for i in dead[:1]:  # the IMM's modes have one failed channel
+        f = _rebuilt_gravity(f, i)
+        euler_sigma = np.radians([10.0, 10.0, 5.0])  # the upright-and-level guess
+    for i, c in enumerate("pqr"):
+        if c in failed_channels:
+            rates[i] = 0.0
+            rates_sigma[i] = 0.2
     g = float(np.linalg.norm(f))
     theta = float(np.arcsin(np.clip(f[0] / g, -1.0, 1.0)))
     phi = float(np.arctan2(-f[1], -f[2]))
@@ -62,9 +137,9 @@ def align(t_s: float, imu: np.ndarray, gps: np.ndarray) -> NavSolution:
         np.array(gps[:3], dtype=float),
         np.array([speed * np.cos(course), speed * np.sin(course), 0.0]),
         np.array([phi, theta, course]),
-        np.array(imu[3:6], dtype=float),
+        rates,
         np.array([1.0, 1.0, 1.5]),
         np.array([1.0, 1.0, 1.0]),
-        np.radians([3.0, 3.0, 5.0]),
-        np.full(3, 0.003),  # straight from the gyros
+        euler_sigma,
+        rates_sigma,
     )

@@ -1,10 +1,15 @@
 """Fault declaration from mode probabilities: threshold, dwell, clearing, settling time.
 
 The IMM is decision free (paper, section 2.D); a user needs a decision. A fault mode is
-declared when its probability stays at or above ``threshold`` for ``dwell_s``, and cleared when
-it stays below ``clear_threshold`` for ``clear_dwell_s``. Nothing is declared during the first
-``settle_s`` after the estimator starts (its covariances are still converging from the
-initial alignment).
+declared when its probability stays at or above ``threshold`` for ``dwell_s``. It is cleared
+when its probability stays below ``clear_threshold`` for ``clear_dwell_s`` *and* the declared
+channels have shown they are alive: at least ``alive_samples`` readings more than
+``alive_sigmas`` noise sigmas from zero since the declaration. A zeroed sensor reads zero plus
+its noise, beyond 5 sigma once in about 1.7 million samples (4.8 h at 100 Hz), so a sensor that
+stays dead is never cleared, whatever the probabilities do while it cannot be told from a
+healthy one (a y accelerometer in coordinated flight, a q gyro on a straight leg). Nothing is
+declared during the first ``settle_s`` after the estimator starts (its covariances are still
+converging from the initial alignment).
 """
 
 from __future__ import annotations
@@ -26,6 +31,8 @@ class DetectorConfig:
     clear_threshold: float = 0.5
     clear_dwell_s: float = 5.0
     settle_s: float = 3.0
+    alive_sigmas: float = 5.0
+    alive_samples: int = 3
 
     def __post_init__(self) -> None:
         if not 0.0 < self.clear_threshold <= self.threshold < 1.0:
@@ -88,13 +95,30 @@ class FaultDetector:
         self.declared: FaultMode | None = None
         self._above_since: dict[int, float] = {}
         self._below_since: float | None = None
+        self._alive = 0  # readings of the declared channels beyond the noise since declared
 
-    def update(self, t_s: float, probabilities: np.ndarray) -> list[DetectionEvent]:
-        """Feed the probabilities at ``t_s``; returns the events this sample caused."""
+    def update(
+        self,
+        t_s: float,
+        probabilities: np.ndarray,
+        imu: np.ndarray | None = None,
+        imu_sigmas: np.ndarray | None = None,
+    ) -> list[DetectionEvent]:
+        """Feed the probabilities at ``t_s``; returns the events this sample caused.
+
+        ``imu`` (the six readings) and ``imu_sigmas`` (their noise sigmas) show whether a
+        declared channel is alive; without them a declared fault clears on the probabilities
+        alone.
+        """
         cfg = self.config
         events: list[DetectionEvent] = []
         if len(self.modes) < 2:  # a single filter (UKF-1/2/3) has nothing to decide between
             return events
+        if self.declared is not None and imu is not None and imu_sigmas is not None:
+            readings = np.abs(np.asarray(imu)[: len(imu_sigmas)])
+            mask = self.declared.healthy_mask == 0.0
+            if np.any(readings[mask] > cfg.alive_sigmas * np.asarray(imu_sigmas)[mask]):
+                self._alive += 1
         for j, mode in enumerate(self.modes):
             if mode.bits == 0:
                 continue
@@ -105,10 +129,11 @@ class FaultDetector:
         if self.declared is not None:
             j = self.modes.index(self.declared)
             p = float(probabilities[j])
+            alive = imu_sigmas is None or self._alive >= cfg.alive_samples
             if p < cfg.clear_threshold:
                 if self._below_since is None:
                     self._below_since = t_s
-                if t_s - self._below_since >= cfg.clear_dwell_s:
+                if t_s - self._below_since >= cfg.clear_dwell_s and alive:
                     events.append(DetectionEvent("cleared", self.declared, t_s, p))
                     self.declared = None
                     self._below_since = None
@@ -131,6 +156,7 @@ class FaultDetector:
                 )
             self.declared = mode
             self._below_since = None
+            self._alive = 0
             events.append(DetectionEvent("detected", mode, t_s, float(probabilities[j])))
             break
         return events

@@ -32,9 +32,9 @@ from immukf_sitl.estimation import (
     JulierSigmaPoints,
     Measurement,
     MeasurementModel,
+    ObservabilityGate,
     ProcessModel,
     UnscentedKalmanFilter,
-    ObservabilityGate,
     fault_masked_output,
     single_fault_modes,
 )
@@ -55,7 +55,10 @@ GPS_COURSE_CHANNEL = 4
 
 
 def aero_process_model(
-    model: AugmentedAeroModel, noise: SlowStateNoise, sensors: SensorSpec, tuning: FilterTuning
+    model: AeroModel | AugmentedAeroModel,
+    noise: SlowStateNoise | None,
+    sensors: SensorSpec,
+    tuning: FilterTuning,
 ) -> ProcessModel:
     """``x(k+1) = f[x(k), u(k), v(k)]`` (eq. 1): RK4 of the 6-DOF model with its slow states.
 
@@ -72,7 +75,8 @@ def aero_process_model(
     dt = model.dt_s
     nx = model.nx
     slow = np.zeros((nx, nx))
-    slow[N_RIGID:, N_RIGID:] = np.diag(noise.step_variance(dt))
+    if noise is not None:
+        slow[N_RIGID:, N_RIGID:] = np.diag(noise.step_variance(dt))
     # additive form: v held over one step moves velocity and rates by v dt
     additive = slow.copy()
     vel_rates = [3, 4, 5, 9, 10, 11]
@@ -87,12 +91,12 @@ def aero_process_model(
         noise_cov=q,
         additive_noise_cov=additive,
         angle_idx=model.angle_indices,
-        state_noise_cov=slow,
+        state_noise_cov=slow if noise is not None else None,
     )
 
 
 def aero_measurement_models(
-    model: AugmentedAeroModel, modes: Sequence[FaultMode], sensors: SensorSpec
+    model: AeroModel | AugmentedAeroModel, modes: Sequence[FaultMode], sensors: SensorSpec
 ) -> tuple[MeasurementModel, MeasurementModel]:
     """Mode-batched output models (eq. 2): IMU alone, and IMU followed by GPS.
 
@@ -249,7 +253,7 @@ class AircraftEstimator(_Bank):
     imm: ImmEstimator
     imu_model: MeasurementModel
     imu_gps_model: MeasurementModel
-    noise: SlowStateNoise
+    noise: SlowStateNoise | None
 
     def initial_estimate(
         self,
@@ -273,6 +277,8 @@ class AircraftEstimator(_Bank):
              nav.rates_sigma_radps]
         )  # fmt: skip
         mean, cov = self.augmented(mean, np.diag(sigma**2))
+        if self.noise is None:
+            return self.start(nav.t_s, mean, cov, controls, imu, mode_probabilities)
         errors = np.arange(N_RIGID + GPS_ERROR.start, N_RIGID + GPS_ERROR.stop)
         gps_var = np.diagonal(cov)[errors]
         cov[[0, 1, 2], [0, 1, 2]] += gps_var  # the fix is the true position plus its error
@@ -281,7 +287,12 @@ class AircraftEstimator(_Bank):
         return self.start(nav.t_s, mean, cov, controls, imu, mode_probabilities)
 
     def augmented(self, mean: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """A 12-state rigid-body ``mean``, ``cov`` with the slow states appended (zero mean)."""
+        """A 12-state rigid-body ``mean``, ``cov`` with the slow states appended (zero mean).
+
+        The paper's model (no slow states) takes them as they are.
+        """
+        if self.noise is None:
+            return np.array(mean, dtype=float), np.array(cov, dtype=float)
         nx = self.imm.ukf.process.nx
         full_mean = np.zeros(nx)
         full_mean[:N_RIGID] = mean
@@ -360,21 +371,25 @@ def build_aero_estimator(
         modes = (FaultMode(0),)
     else:
         raise ValueError(f"not an aerodynamic-model variant: {variant!r}")
-    noise = slow_state_noise(model.params, sensors, tuning)
-    augmented = AugmentedAeroModel(model, noise.decay_per_s)
-    process = aero_process_model(augmented, noise, sensors, tuning)
+    if tuning.slow_states:
+        noise: SlowStateNoise | None = slow_state_noise(model.params, sensors, tuning)
+        flown: AeroModel | AugmentedAeroModel = AugmentedAeroModel(model, noise.decay_per_s)
+    else:
+        noise, flown = None, model
+    process = aero_process_model(flown, noise, sensors, tuning)
     ukf = UnscentedKalmanFilter(process, JulierSigmaPoints(kappa), noise_form, backend)
     transition = tuning.transition(modes)
     floor = tuning.probability_floor if len(modes) > 1 else 0.0
 
     def own_imu(t_s: float, x: np.ndarray, u: np.ndarray) -> np.ndarray:
-        return augmented.imu(t_s, x, u[1])  # u is the pair [u(k), u(k+1)]
+        return flown.imu(t_s, x, u[1])  # u is the pair [u(k), u(k+1)]
 
-    gate = ObservabilityGate(
-        modes, own_imu, np.diagonal(sensors.imu.noise_cov()), tuning.observability_sigmas
-    )
-    imm = ImmEstimator(ukf, transition, floor, gate if len(modes) > 1 else None)
-    imu_model, imu_gps_model = aero_measurement_models(augmented, modes, sensors)
+    gate = None
+    if tuning.slow_states and len(modes) > 1:
+        noise_var = np.diagonal(sensors.imu.noise_cov())
+        gate = ObservabilityGate(modes, own_imu, noise_var, tuning.observability_sigmas)
+    imm = ImmEstimator(ukf, transition, floor, gate)
+    imu_model, imu_gps_model = aero_measurement_models(flown, modes, sensors)
     return AircraftEstimator(variant, tuple(modes), imm, imu_model, imu_gps_model, noise)
 
 

@@ -104,9 +104,7 @@ def slow_state_noise(
     # gyro bias: the spec sheet
     instability = imu.bias_instability
     gyro_wander = imu.gyro_bias_instability_radps if instability else 0.0
-    initial[GYRO_BIAS] = math.hypot(
-        imu.gyro_bias_sigma_radps, gyro_wander
-    )
+    initial[GYRO_BIAS] = math.hypot(imu.gyro_bias_sigma_radps, gyro_wander)
     if gyro_wander > 0.0:
         decay[GYRO_BIAS] = 1.0 / imu.bias_time_constant_s
         stationary[GYRO_BIAS] = gyro_wander

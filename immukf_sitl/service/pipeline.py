@@ -270,11 +270,19 @@ class EstimatorPipeline:
         estimator = build_estimator(
             cfg.variant, self.params, self.origin, cfg.true_mode, cfg.sensors, cfg.tuning
         )
+        # a re-alignment keeps what the detector declared: the failed channel is not trusted
+        # by the alignment, and the bank starts believing it
+        declared = self.detector.declared if self.detector is not None else None
+        failed = declared.channels if declared is not None else ()
         # the alignment sample itself is the first step's measurement: start one period earlier
-        nav = align(t_s - IMU_PERIOD_S, imu, gps)
-        self.estimate = estimator.initial_estimate(nav, self._controls, imu)
+        nav = align(t_s - IMU_PERIOD_S, imu, gps, failed)
+        probs = estimator.probabilities_believing(declared)
+        self.estimate = estimator.initial_estimate(nav, self._controls, imu, probs)
         self.estimator = estimator
-        self.detector = FaultDetector(estimator.modes, cfg.detector, t_s)
+        if self.detector is None:
+            self.detector = FaultDetector(estimator.modes, cfg.detector, t_s)
+        else:
+            self.detector.start_s = t_s  # settle again; what was declared stays declared
         self._restart_at_s = t_s + cfg.detector.settle_s
 
     def _bridge_gap(self, previous_s: float, gap_steps: int, imu: np.ndarray) -> None:
@@ -308,7 +316,9 @@ class EstimatorPipeline:
             self.counters.stale_actuator_steps += 1
             events = []
         else:
-            events = self.detector.update(t_s, est.mode_probabilities)
+            events = self.detector.update(
+                t_s, est.mode_probabilities, imu, self.config.sensors.imu.sigmas
+            )
         return EstimateOutput(
             t_s,
             nav,
