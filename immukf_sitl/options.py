@@ -155,7 +155,8 @@ class FilterOptions:
             "--recovery-probability",
             "tuning",
             "recovery_probability",
-            "per-step Markov probability fault -> fault-free (README 'Detection and tuning')",
+            "per-step Markov probability fault -> fault-free; --filter-model real-air: 1e-7 "
+            "(README 'Detection and tuning')",
         ),
     )
 
@@ -175,6 +176,15 @@ class FilterOptions:
         group.add_argument(
             "--true-mode", default=None, help="fault mode UKF-1 is matched to (e.g. q, x+q)"
         )
+        group.add_argument(
+            "--filter-model",
+            choices=FILTER_MODELS,
+            default="paper",
+            help="the aircraft model of ukf1/ukf2/imm: paper (12 states: still air, exact "
+            "sensors and airframe; default) or real-air (27 states: wind, gyro biases, force "
+            "and moment corrections, GPS error, with a sticky Markov chain of 1e-7 per step; "
+            "README 'Real air')",
+        )
         for flag, record, attribute, text in cls._NUMERIC:
             default = getattr(defaults[record], attribute)
             group.add_argument(
@@ -184,6 +194,8 @@ class FilterOptions:
                 default=default,
                 help=f"{text} (default {default})",
             )
+        # the chain's recovery default depends on --filter-model (real-air: 1e-7)
+        parser.set_defaults(recovery_probability=None)
         group.add_argument(
             "--params",
             dest="params_path",
@@ -215,12 +227,17 @@ class FilterOptions:
         values: dict[str, dict[str, float]] = {"detector": {}, "tuning": {}}
         for flag, record, attribute, _ in cls._NUMERIC:
             value = getattr(args, attribute)
+            if value is None:
+                continue  # a default that depends on another option
             if not math.isfinite(value):
                 raise UserError(f"{flag}: expected a finite number, got {value}")
             values[record][attribute] = value
         try:
             detector = DetectorConfig(**values["detector"])
-            tuning = FilterTuning(**values["tuning"])
+            if getattr(args, "filter_model", "paper") == "real-air":
+                tuning = FilterTuning.real_air(**values["tuning"])
+            else:
+                tuning = FilterTuning(**values["tuning"])
             tuning.transition((FaultMode(0), FaultMode(1)))  # validates the chain
         except ValueError as exc:
             raise UserError(str(exc)) from None
@@ -253,6 +270,7 @@ class FilterOptions:
     def to_argv(self) -> list[str]:
         """The same options as command-line arguments (``run`` passes them to ``serve``)."""
         argv = ["--variant", self.variant]
+        argv += ["--filter-model", "real-air" if self.tuning.slow_states else "paper"]
         if self.true_mode is not None:
             argv += ["--true-mode", self.true_mode.name]
         for flag, record, attribute, _ in self._NUMERIC:
@@ -262,6 +280,10 @@ class FilterOptions:
         if self.sensors_path is not None:
             argv += ["--sensors", self.sensors_path]
         return argv
+
+
+#: ``--filter-model`` choices: the paper's 12-state model, the 27-state real-air model.
+FILTER_MODELS = ("paper", "real-air")
 
 
 @dataclass(frozen=True)
