@@ -414,15 +414,23 @@ def rotate_ned_to_body(
 
 
 @_kernel
-def air_relative(x: np.ndarray, e: np.ndarray, xa: np.ndarray) -> None:
+def air_relative(
+    x: np.ndarray,
+    e: np.ndarray,
+    sph: Value,
+    cph: Value,
+    sth: Value,
+    cth: Value,
+    sps: Value,
+    cps: Value,
+    xa: np.ndarray,
+) -> None:
     """``x`` with its body velocity made relative to the air moving at ``e[0:3]`` (NED), in ``xa``.
 
     The forces and moments depend on the velocity through the air, ``v_a = v_g - R_bn w``
-    (B&M eq. 2.5); the rigid-body equations keep the ground velocity.
+    (B&M eq. 2.5); the rigid-body equations keep the ground velocity. ``sph`` ... ``cps`` are the
+    sines and cosines of ``x``'s Euler angles (the caller has them).
     """
-    sph, cph = np.sin(x[6]), np.cos(x[6])
-    sth, cth = np.sin(x[7]), np.cos(x[7])
-    sps, cps = np.sin(x[8]), np.cos(x[8])
     w_u, w_v, w_w = rotate_ned_to_body(
         e[WIND_N], e[WIND_E], e[WIND_D], sph, cph, sth, cth, sps, cps
     )
@@ -461,7 +469,7 @@ def derivatives(
     out[0] = north  # B&M eq. (3.14)
     out[1] = east
     out[2] = down
-    air_relative(x, e, xa)
+    air_relative(x, e, sph, cph, sth, cth, sps, cps, xa)
     forces_moments(xa, u, k, fm)
     grav = k[G0] + k[DG] * x[2]
     inv_m = k[INV_MASS]
@@ -545,7 +553,10 @@ def imu(
     ``+ omega_dot x r + omega x (omega x r)`` when the lever arm is non-zero; the gyros read the
     body rates plus their biases.
     """
-    air_relative(x, e, xa)
+    sph, cph = np.sin(x[6]), np.cos(x[6])
+    sth, cth = np.sin(x[7]), np.cos(x[7])
+    sps, cps = np.sin(x[8]), np.cos(x[8])
+    air_relative(x, e, sph, cph, sth, cth, sps, cps, xa)
     forces_moments(xa, u, k, fm)
     p, q, r = x[9], x[10], x[11]
     inv_m = k[INV_MASS]
