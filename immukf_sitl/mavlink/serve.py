@@ -398,7 +398,7 @@ class EstimatorService:
             return 0
         reader = self._reader
         if reader is None:  # not UDP: pymavlink reads the stream; the stamp is the read time
-            while True:
+            while not self._stop:
                 received_ns = time.time_ns()
                 msg = self.inbound.recv_msg()
                 if msg is None:
@@ -406,7 +406,7 @@ class EstimatorService:
                 self.handle(msg, received_ns)
                 handled += 1
             return handled
-        while True:
+        while not self._stop:  # a flood must not keep a stop request waiting
             datagram = reader.read()
             if datagram is None:
                 break
