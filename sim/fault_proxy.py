@@ -249,6 +249,7 @@ class FaultProxy:
         self.downstream = downstream
         self.tlog = tlog
         self.signing = signing
+        self._parser = self._new_parser()
         self._annotator = mavlink.MAVLink(None, SIM_SYSTEM_ID, PROXY_COMPONENT_ID)
         self._active: set[int] = set()
         self._time_s = 0.0
@@ -259,6 +260,14 @@ class FaultProxy:
         self._modified = 0
         self._bad = 0
         self._imu_type = mavlink.MAVLINK_MSG_ID_HIGHRES_IMU
+
+    def _new_parser(self) -> mavlink.MAVLink:
+        """A robust parser (checking signatures with the key, if any)."""
+        if self.signing is not None:
+            return self.signing.parser()
+        parser = mavlink.MAVLink(None)
+        parser.robust_parsing = True
+        return parser
 
     def _annotate(self, text: str, time_s: float) -> None:
         assert self.tlog is not None
@@ -294,17 +303,16 @@ class FaultProxy:
         came. HIGHRES_IMU frames on which a fault acts are spliced out and replaced. With a
         tlog, every parsed frame is recorded as forwarded.
         """
-        if self.signing is not None:
-            parser = self.signing.parser()
-        else:
-            parser = mavlink.MAVLink(None)
-            parser.robust_parsing = True
+        parser = self._parser
         try:
             messages = parser.parse_buffer(datagram) or []
         except Exception:  # pymavlink raises assorted errors on garbage: never crash
             self._bad += 1
+            self._parser = self._new_parser()
             return datagram
         bad = parser.buf_len() > 0  # a truncated frame left in the parser
+        if bad:  # UDP carries whole frames: the rest must not join the next datagram
+            self._parser = self._new_parser()
         out = datagram
         position = 0
         frames: list[tuple[bytes, float]] = []

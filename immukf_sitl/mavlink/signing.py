@@ -20,6 +20,7 @@ from __future__ import annotations
 import os
 import secrets
 import struct
+import weakref
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -146,10 +147,13 @@ class LinkSigning:
     def watch(self, mav: mavlink.MAVLink) -> mavlink.MAVLink:
         """Make a parser or encoder share this signing state (and count its rejections)."""
         mav.signing = self.state
-        original = type(mav).check_signature.__get__(mav)
+        # a weak reference and the class's function: a closure holding ``mav`` would make a
+        # reference cycle per parser, garbage that only the rare full collections free
+        owner = weakref.ref(mav)
+        original = type(mav).check_signature
 
         def check_signature(msgbuf: bytearray, src_system: int, src_component: int) -> bool:
-            return self._check(original, msgbuf, src_system, src_component)
+            return self._check(original, owner(), msgbuf, src_system, src_component)
 
         mav.check_signature = check_signature
         return mav
@@ -160,13 +164,13 @@ class LinkSigning:
         parser.robust_parsing = True
         return self.watch(parser)
 
-    def _check(self, original, msgbuf: bytearray, src_system: int, src_component: int) -> bool:
+    def _check(self, original, mav, msgbuf: bytearray, src_system: int, src_component: int) -> bool:
         """Run pymavlink's check; classify a failure and keep the stream's clock."""
         link_id, _ = frame_signature_fields(msgbuf)
         stream = (link_id, src_system, src_component)
         streams = self.state.stream_timestamps
         had, before = stream in streams, streams.get(stream)
-        if original(msgbuf, src_system, src_component):
+        if original(mav, msgbuf, src_system, src_component):
             return True
         self._failed_check = True
         if streams.get(stream) == before and (stream in streams) == had:
