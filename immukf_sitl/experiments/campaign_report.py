@@ -134,7 +134,7 @@ def write_figure(campaign: Campaign, path: Path) -> str | None:
 def _ratio_text(a: float, b: float) -> str:
     if not (math.isfinite(a) and math.isfinite(b)) or b == 0:
         return "–"
-    return f"{a / b:.3g}×"
+    return f"{a / b:.2f}×"
 
 
 def _table1_discussion(rows: Sequence[Row]) -> str:
