@@ -7,8 +7,9 @@ import time
 import numpy as np
 import pytest
 
+from immukf_sitl.errors import UserError
 from immukf_sitl.experiments.run import free_udp_ports, spawn_cli
-from immukf_sitl.mavlink import codec
+from immukf_sitl.mavlink import codec, serve
 from immukf_sitl.mavlink.wire import connect, mavlink
 from immukf_sitl.models.params import load_aircraft_params
 from immukf_sitl.samples import ActuatorSample, GpsSample, ImuSample
@@ -42,8 +43,10 @@ def served():
     params = load_aircraft_params()
     rng = np.random.default_rng(4)
     received, acks = [], []
+    fix = None
     try:
-        child.wait_ready("serve: ready", 120.0)  # bound, kernels compiled
+        # bound, kernels compiled (patiently: a cold numba cache takes minutes under load)
+        child.wait_ready(serve.READY, 120.0, busy=serve.WARMING_UP, busy_timeout_s=900.0)
         deadline = time.monotonic() + 120
         for rec in fly(default_flight_plan(), seed=11, duration_s=DURATION_S):
             t = rec.time_s
@@ -52,8 +55,9 @@ def served():
                 fix = GpsSample(t, g.lat_deg, g.lon_deg, g.alt_m, g.ground_speed_mps, g.course_rad)
                 sim.mav.send(codec.gps_raw_int_message(fix))
             pwm = params.actuators.controls_to_pwm(rec.controls)
-            sim.mav.send(codec.servo_output_raw_message(
-                ActuatorSample(t, tuple(pwm.get(c, 0) for c in range(1, 17)))))  # fmt: skip
+            servo = codec.servo_output_raw_message(
+                ActuatorSample(t, tuple(pwm.get(c, 0) for c in range(1, 17))))  # fmt: skip
+            sim.mav.send(servo)
             imu = rec.imu.as_array().copy()
             if t >= FAULT_AT_S:
                 imu[2] = 0.0245 * rng.standard_normal()
@@ -67,6 +71,8 @@ def served():
                 sim.mav.send(codec.highres_imu_message(ImuSample(t, [math.nan, 0, 0], imu[3:])))
                 sim.mav.send(codec.highres_imu_message(ImuSample(t, [1e30, 0, 0], imu[3:])))
                 sim.mav.send(codec.highres_imu_message(ImuSample(t, imu[:3], imu[3:])))
+                sim.mav.send(servo)  # a duplicate servo output and the last fix again
+                sim.mav.send(codec.gps_raw_int_message(fix))
             # lock-step: stay within 10 steps of the last acknowledgement
             while time.monotonic() < deadline:
                 _drain(sim, acks)
@@ -130,6 +136,51 @@ def test_junk_is_counted_not_fatal(served):
     assert summary["bad_packets"] >= 1
     assert summary["decode_errors"] >= 2  # the NaN and the 1e30 HIGHRES_IMU
     assert summary["counters"]["out_of_order"] >= 1  # the duplicate
+    assert summary["counters"]["actuator_out_of_order"] == 1
+    assert summary["counters"]["gps_out_of_order"] == 1
     assert summary["received"].get("HIL_STATE_QUATERNION", 0) == 0
     assert summary["step_us"]["median"] > 0  # every fused sample was timed (speed: tools/)
     assert "Traceback" not in err
+
+
+class _FakeProc:
+    """A child that never exits and prints nothing more (its lines are set by the test)."""
+
+    stderr: list = []
+
+    def poll(self):
+        return None
+
+
+def _waiting_child(monkeypatch, ready_at_s: float | None):
+    """A Child that printed serve's warming-up line; ``ready_at_s`` of a fake clock it is ready."""
+    from immukf_sitl.experiments import processes
+
+    clock = {"t": 0.0}
+    child = processes.Child("serve", _FakeProc(), echo=False)
+    child.lines.append(serve.WARMING_UP + ": imm (numba ...)")
+
+    def sleep(dt):
+        clock["t"] += 1.0
+        if ready_at_s is not None and clock["t"] >= ready_at_s and len(child.lines) == 1:
+            child.lines.append(serve.READY + ": imm on ...")
+
+    monkeypatch.setattr(processes.time, "monotonic", lambda: clock["t"])
+    monkeypatch.setattr(processes.time, "sleep", sleep)
+    return child, clock
+
+
+def test_a_serve_compiling_on_a_cold_cache_is_waited_for(monkeypatch, capsys):
+    child, clock = _waiting_child(monkeypatch, ready_at_s=300.0)
+    child.wait_ready(serve.READY, 120.0, busy=serve.WARMING_UP, busy_timeout_s=900.0)
+    assert clock["t"] == 300.0
+    assert "serve: still starting after 30 s" in capsys.readouterr().err
+
+
+def test_a_serve_that_never_gets_ready_is_a_one_line_error(monkeypatch):
+    child, clock = _waiting_child(monkeypatch, ready_at_s=None)
+    with pytest.raises(UserError, match="did not report ready within 900 s.*warming up"):
+        child.wait_ready(serve.READY, 120.0, busy=serve.WARMING_UP, busy_timeout_s=900.0)
+    child, clock = _waiting_child(monkeypatch, ready_at_s=300.0)
+    with pytest.raises(UserError, match="within 120 s"):  # without patience: the old failure
+        child.wait_ready(serve.READY, 120.0)

@@ -25,6 +25,7 @@ from immukf_sitl.errors import UserError
 from immukf_sitl.experiments.processes import free_udp_ports, spawn_cli
 from immukf_sitl.mavlink import codec
 from immukf_sitl.mavlink.flightlog import read_estimator_log
+from immukf_sitl.mavlink.serve import READY, WARMING_UP
 from immukf_sitl.mavlink.signing import LinkSigning, load_key, write_key
 from immukf_sitl.mavlink.wire import (
     ESTIMATOR_COMPONENT_ID,
@@ -294,14 +295,13 @@ def test_forged_and_replayed_frames_change_nothing_in_the_estimate(signed_run, t
     forger = _Forger(p_est)
     children = [serve, proxy]
     try:
-        serve.wait_ready("serve: ready", 120)
+        serve.wait_ready(READY, 120, busy=WARMING_UP, busy_timeout_s=900.0)
         proxy.wait_ready("proxy:", 60)
         forger.start()
         sim = spawn_cli("sim", ["sim", str(Q_SCENARIO), "--out", f"udpout:127.0.0.1:{p_proxy}",
                                 "--duration", "8", "--json", *sign])  # fmt: skip
         children.append(sim)
         sim.proc.wait(timeout=120)
-        forger.stop()
         assert sim.proc.returncode == 0, sim.last_error()
         proxy_out = json.loads(proxy.stop().strip().splitlines()[-1])
         # the flight's own signed HIGHRES_IMU frames, sent again: replays
@@ -314,6 +314,9 @@ def test_forged_and_replayed_frames_change_nothing_in_the_estimate(signed_run, t
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
             for frame in replays:
                 sock.sendto(frame, ("127.0.0.1", p_est))
+        # the forger ran on until now: its frames keep serve from its idle exit (2 s), which a
+        # loaded machine could reach while the proxy stops and its tlog is read
+        forger.stop()
         serve.proc.wait(timeout=30)
         serve_out = json.loads(serve.stop().strip().splitlines()[-1])
     finally:

@@ -32,6 +32,7 @@ sys.path.insert(0, str(REPO))
 from immukf_sitl.errors import UserError  # noqa: E402
 from immukf_sitl.experiments.processes import Child, free_udp_ports, spawn_cli  # noqa: E402
 from immukf_sitl.mavlink.listener import GroundStationListener  # noqa: E402
+from immukf_sitl.mavlink.serve import READY, WARMING_UP  # noqa: E402
 from immukf_sitl.mavlink.signing import write_key  # noqa: E402
 from immukf_sitl.scenario import load_scenario  # noqa: E402
 
@@ -98,7 +99,7 @@ def fly(args: argparse.Namespace) -> dict:
     try:
         children["serve"] = spawn_cli("serve", argv["serve"], echo=args.verbose)
         children["proxy"] = spawn_cli("proxy", argv["proxy"], echo=args.verbose)
-        children["serve"].wait_ready("serve: ready", 300.0)
+        children["serve"].wait_ready(READY, 120.0, busy=WARMING_UP, busy_timeout_s=900.0)
         children["proxy"].wait_ready("proxy:", 60.0)
         children["sim"] = spawn_cli("sim", argv["sim"], echo=args.verbose)
         next_sample = 0.0

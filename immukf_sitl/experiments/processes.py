@@ -6,6 +6,7 @@ interpreter, on loopback UDP ports that were free a moment before.
 
 from __future__ import annotations
 
+import math
 import os
 import signal
 import subprocess
@@ -39,16 +40,57 @@ class Child:
             if self.echo:
                 print(f"  [{self.name}] {line}", file=sys.stderr, flush=True)
 
-    def wait_ready(self, prefix: str, timeout_s: float) -> None:
-        """Block until the child prints a line starting with ``prefix`` (its ports are bound)."""
-        deadline = time.monotonic() + timeout_s
-        while time.monotonic() < deadline:
-            if any(line.startswith(prefix) for line in list(self.lines)):
+    def _printed(self, prefix: str) -> bool:
+        return any(line.startswith(prefix) for line in list(self.lines))
+
+    def wait_ready(
+        self,
+        prefix: str,
+        timeout_s: float,
+        *,
+        busy: str | None = None,
+        busy_timeout_s: float = 0.0,
+        notice_every_s: float = 30.0,
+    ) -> None:
+        """Block until the child prints a line starting with ``prefix`` (its ports are bound).
+
+        A child that announces a long start-up step with a line starting with ``busy`` (serve:
+        compiling its numba kernels, minutes on a cold cache under load) is given
+        ``busy_timeout_s`` from that line on instead of ``timeout_s``, and a note goes to stderr
+        every ``notice_every_s`` while it works. A child that exits first is a one-line error.
+        """
+        started = time.monotonic()
+        deadline = started + timeout_s
+        busy_since: float | None = None
+        next_notice = math.inf
+        while True:
+            now = time.monotonic()
+            if self._printed(prefix):
                 return
             if self.proc.poll() is not None:
                 raise UserError(f"{self.name} failed to start: {self.last_error()}")
+            if busy is not None and busy_since is None and self._printed(busy):
+                busy_since = now
+                deadline = max(deadline, now + busy_timeout_s)
+                next_notice = now + notice_every_s
+            if now >= deadline:
+                break
+            if now >= next_notice:
+                print(
+                    f"{self.name}: still starting after {now - started:.0f} s "
+                    f"({self.last_error()})",
+                    file=sys.stderr,
+                    flush=True,
+                )
+                next_notice = now + notice_every_s
             time.sleep(0.02)
-        raise UserError(f"{self.name} did not report ready within {timeout_s:.0f} s")
+        waited = time.monotonic() - started
+        if busy_since is not None:
+            raise UserError(
+                f"{self.name} did not report ready within {waited:.0f} s; its last line: "
+                f"{self.last_error()}"
+            )
+        raise UserError(f"{self.name} did not report ready within {waited:.0f} s")
 
     def stop(self, timeout_s: float = 15.0) -> str:
         """SIGINT, wait, kill if needed; returns stdout."""

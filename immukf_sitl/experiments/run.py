@@ -40,14 +40,19 @@ from immukf_sitl.experiments.report import (
 )
 from immukf_sitl.mavlink.flightlog import merge_flight_log, read_estimator_log, read_flight_log
 from immukf_sitl.mavlink.listener import GroundStationListener
+from immukf_sitl.mavlink.serve import READY as SERVE_READY
+from immukf_sitl.mavlink.serve import WARMING_UP as SERVE_WARMING_UP
 from immukf_sitl.mavlink.signing import load_key, write_key
 from immukf_sitl.options import RunOptions
 from immukf_sitl.scenario import Scenario, load_scenario, sensors_to_yaml
 from immukf_sitl.service.detection import DetectionEvent
 from immukf_sitl.service.timing import TimingStats
 
-#: How long serve (which compiles its kernels first) and proxy may take to bind their ports.
+#: How long serve and proxy may take to bind their ports.
 READY_TIMEOUT_S = 120.0
+#: How long serve may then take to compile its numba kernels (seconds with a warm cache; a cold
+#: one took over two minutes on the 2-core machine under load): it says when it starts.
+WARM_UP_TIMEOUT_S = 900.0
 #: If run itself dies, its serve exits once input has stopped this long (a backstop).
 ORPHAN_IDLE_EXIT_S = 30.0
 #: The sim's lock-step patience: generous, since run watches its children itself.
@@ -155,8 +160,10 @@ def fly_chain(scenario: Scenario, options: RunOptions, files: RunFiles) -> Chain
         children.append(serve)
         proxy = spawn_cli("proxy", proxy_argv, echo)
         children.append(proxy)
-        for child, ready in ((serve, "serve: ready"), (proxy, "proxy:")):
-            child.wait_ready(ready, READY_TIMEOUT_S)
+        serve.wait_ready(
+            SERVE_READY, READY_TIMEOUT_S, busy=SERVE_WARMING_UP, busy_timeout_s=WARM_UP_TIMEOUT_S
+        )
+        proxy.wait_ready("proxy:", READY_TIMEOUT_S)
         sim = spawn_cli("sim", sim_argv, echo)
         children.append(sim)
         last_report = 0.0

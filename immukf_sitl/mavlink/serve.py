@@ -81,6 +81,10 @@ example:
 _ATTITUDE_ID = mavlink.MAVLINK_MSG_ID_ATTITUDE
 DEFAULT_IN = "udpin:127.0.0.1:14561"
 DEFAULT_OUT = "udpout:127.0.0.1:14550"
+#: serve's start-up lines on stderr: the ports are bound and the kernels are being compiled,
+#: then it is ready for samples (``run`` waits for the second, patiently after the first).
+WARMING_UP = "serve: warming up"
+READY = "serve: ready"
 STATS_WINDOW = 20_000
 #: Lags kept for the statistics: 10 minutes of ATTITUDE at its default 50 Hz.
 LAG_WINDOW = 30_000
@@ -463,7 +467,8 @@ class EstimatorService:
             f"serve: t={t} s steps={c.steps} step mean {fmt(step['mean'])} us "
             f"p99 {fmt(step['p99'])} us lag median {fmt(lag['median'])} "
             f"p99 {fmt(lag['p99'])} max {fmt(lag['max'])} us "
-            f"dropped={c.out_of_order} gaps={c.gap_steps} bad={self.stats.bad_packets} "
+            f"dropped={c.out_of_order} servo_dropped={c.actuator_out_of_order} "
+            f"gps_dropped={c.gps_out_of_order} gaps={c.gap_steps} bad={self.stats.bad_packets} "
             f"decode_err={self.stats.decode_errors} ignored={self.stats.ignored} "
             f"send_err={self.stats.send_errors + self.stats.pack_errors} "
             f"realigned={c.realignments} restarts={c.restarts} "
@@ -612,9 +617,15 @@ def _main(args: argparse.Namespace) -> int:
     )
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: service.stop())
+    print(
+        f"{WARMING_UP} {options.variant} (numba compiles its kernels on the first start on a "
+        "machine: minutes on a cold cache under load, then cached)",
+        file=sys.stderr,
+        flush=True,
+    )
     pipeline.warm_up()
     print(
-        f"serve: ready: {options.variant} on {args.in_url} -> {', '.join(out_urls)}, "
+        f"{READY}: {options.variant} on {args.in_url} -> {', '.join(out_urls)}, "
         f"{'signing on' if signing else 'signing off'}",
         file=sys.stderr,
         flush=True,
