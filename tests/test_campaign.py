@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 from pathlib import Path
 
 import pytest
@@ -77,6 +78,13 @@ def test_shipped_campaigns_expand_to_the_papers_study() -> None:
         ({"failure": {"lateral_m": "far"}}, r"failure\.lateral_m: expected a number"),
         ({"air": [{"name": "w", "wind": {"speed_mps": 99}}]}, r"wind\.speed_mps: expected"),
         ({"scenario": {"duration_s": 8}}, r"flight_plan: required field is missing"),
+        ({"fault_times_s": {"uniform": [6, 2]}}, r"fault_times_s: expected a list of times or"),
+        ({"fault_times_s": {"uniform": [2]}}, r"fault_times_s: expected a list of times or"),
+        ({"fault_times_s": {"normal": [2, 3]}}, r"fault_times_s: expected a list of times or"),
+        ({"fault_times_s": {"uniform": [2, 9]}}, r"fault_times_s: expected times before the"),
+        ({"filter_model": "exact"}, r"filter_model: expected paper or real-air, or a list"),
+        ({"filter_model": ["paper", "paper"]}, r"filter_model: expected paper or real-air"),
+        ({"report": "tables"}, r"report: expected paper or matrix, got 'tables'"),
     ],
 )
 def test_a_bad_campaign_gets_one_line_naming_the_field(changes: dict, message: str) -> None:
@@ -208,7 +216,7 @@ def test_resume_flies_only_what_is_missing_and_a_failed_run_is_recorded(
     monkeypatch.setattr(campaign_run, "fly", flaky)
     first = run_campaign(campaign, tmp_path / "out", progress=False)
     failed = [r for r in first.rows if r["status"] == "error"]
-    assert [r["run_id"] for r in failed] == ["ukf2/q/r0/t4.5/closed/default"]
+    assert [r["run_id"] for r in failed] == ["ukf2/q/r0/t4.5/closed/default/paper"]
     assert failed[0]["error"] == "RuntimeError: JSBSim exploded"
     assert sum(r["status"] != "error" for r in first.rows) == 2
     monkeypatch.setattr(campaign_run, "fly", real_fly)
@@ -239,3 +247,233 @@ def test_progress_line_counts_and_estimates_the_rest() -> None:
     line = bar.line()
     assert "2/4 runs, 1 critical, 0 failed" in line and "ETA " in line and "ETA ?" not in line
     assert stream.getvalue().startswith("experiment: [")
+
+
+# -- issue 9's matrix: filter models, drawn fault times, airframe draws, its metrics -----------
+
+
+def matrix_campaign(**changes: object):
+    scenario = dict(SCENARIO, duration_s=120, airframe={"uncertainty": {"aero": 0.1}})
+    data = tiny(
+        scenario=scenario,
+        replicates=3,
+        variants={"ukf2": ["none", "q"], "ukf3": ["none"], "imm": "single"},
+        fault_times_s={"uniform": [20, 80]},
+        filter_model=["paper", "real-air"],
+        air=[{"name": "calm"}, {"name": "windy", "wind": {"speed_mps": 6}}],
+        report="matrix",
+    )
+    data.update(changes)
+    return parse_campaign(data, "m.yaml")
+
+
+def test_drawn_fault_times_are_shared_by_a_cell_and_differ_between_cells() -> None:
+    campaign = matrix_campaign()
+    runs = campaign.runs()
+    assert len(runs) == 2 * 2 * (2 + 1 + 7) * 3 == len({r.run_id for r in runs})
+    assert {r.run_id.rsplit("/", 1)[1] for r in runs} == {"paper", "real-air"}
+    cells: dict[tuple, set[float]] = {}
+    for r in runs:
+        assert 20.0 <= r.fault_t_s <= 80.0
+        assert r.fault_t_s == pytest.approx(round(r.fault_t_s, 2), abs=1e-9)
+        if r.mode.bits:
+            assert r.scenario.faults[0].t_s == r.fault_t_s
+        cells.setdefault((r.replicate, r.air, r.mode.name), set()).add(r.fault_t_s)
+    # UKF-2, the IMM and both filter models of one cell lose the channel at the same moment
+    assert all(len(times) == 1 for times in cells.values())
+    q = {(rep, air): t for (rep, air, mode), (t,) in cells.items() if mode == "q"}
+    assert len(set(q.values())) == len(q) == 6  # across replicates and airs
+    calm_r0 = {mode: t for (rep, air, mode), (t,) in cells.items() if (rep, air) == (0, "calm")}
+    assert len(set(calm_r0.values())) == 7  # across fault sets
+    # deterministic, independent of which variants and models fly, changed by the seed
+    again = matrix_campaign(variants={"imm": ["q"]}, filter_model="real-air").runs()
+    assert {(r.replicate, r.air): r.fault_t_s for r in again} == q
+    other = matrix_campaign(seed=8).runs()
+    assert {r.fault_t_s for r in other if r.mode.name == "q"}.isdisjoint(q.values())
+
+
+def test_listed_fault_times_still_make_an_axis() -> None:
+    campaign = matrix_campaign(fault_times_s=[30, 45.5], filter_model="paper", air=None)
+    runs = campaign.runs()
+    assert sorted({r.fault_t_s for r in runs}) == [30.0, 45.5]
+    assert len(runs) == 2 * (2 + 1 + 7) * 3
+    assert campaign.filter_models == ("paper",) and runs[0].filter_model == "paper"
+    assert parse_campaign(tiny(), "t.yaml").filter_models == ("paper",)  # the default
+
+
+def test_the_digest_changes_with_the_filter_model_and_the_fault_time_draw() -> None:
+    base = matrix_campaign(filter_model="paper").digest
+    assert matrix_campaign(filter_model="real-air").digest != base
+    assert matrix_campaign(filter_model="paper", fault_times_s={"uniform": [20, 70]}).digest != base
+    assert matrix_campaign(filter_model="paper").digest == base
+
+
+def test_replicate_r_is_airframe_draw_r_in_every_air() -> None:
+    from immukf_sitl.models.airframe import airframe_factors
+    from immukf_sitl.models.params import load_aircraft_params
+
+    params = load_aircraft_params()
+    factors = {}
+    for r in matrix_campaign().runs():
+        drawn = airframe_factors(params, r.scenario.airframe, r.scenario.seed)
+        factors.setdefault(r.replicate, []).append(drawn)
+    for draws in factors.values():
+        assert draws[0] and all(d == draws[0] for d in draws)
+    assert factors[0][0] != factors[1][0] != factors[2][0]
+
+
+def test_the_filter_model_chooses_the_tuning_of_the_run(monkeypatch: pytest.MonkeyPatch) -> None:
+    from immukf_sitl.service.tuning import FilterTuning
+
+    seen = []
+
+    def capture(scenario, config, **kwargs):
+        seen.append(config.tuning)
+        raise RuntimeError("not flown")
+
+    monkeypatch.setattr(campaign_run, "run_inprocess", capture)
+    runs = matrix_campaign().runs()
+    for model in ("paper", "real-air"):
+        spec = next(r for r in runs if r.filter_model == model and r.variant == "imm")
+        row = campaign_run.execute_run(spec)
+        assert row["filter_model"] == model and row["error"] == "RuntimeError: not flown"
+    assert seen == [FilterTuning(), FilterTuning.real_air()]
+    assert seen[0] != seen[1]
+
+
+def test_fault_free_window_and_false_declaration_rate() -> None:
+    from immukf_sitl.experiments.metrics import false_declaration_rate, fault_free_window_s
+
+    assert fault_free_window_s(1.0, 3.0, 45.0, 120.0) == (4.0, 45.0)
+    assert fault_free_window_s(1.0, 3.0, None, 120.0) == (4.0, 120.0)
+    assert fault_free_window_s(1.0, 3.0, 45.0, 30.0) == (4.0, 30.0)  # stopped before the fault
+    start, end = fault_free_window_s(None, 3.0, None, 120.0)
+    assert end <= start
+    rows = [
+        {"fault_free_s": "116", "false_declarations_fault_free": "2"},
+        {"fault_free_s": "40.5", "false_declarations_fault_free": "1"},
+        {"fault_free_s": "", "false_declarations_fault_free": ""},  # a single filter
+        {"fault_free_s": "3.5", "false_declarations_fault_free": "0"},
+    ]
+    rate = false_declaration_rate(rows)
+    assert rate["declarations"] == 3
+    assert rate["hours"] == pytest.approx(160.0 / 3600.0)
+    assert rate["per_hour"] == pytest.approx(3 * 3600.0 / 160.0)  # 67.5 per hour
+    assert math.isnan(false_declaration_rate(rows[2:3])["per_hour"])
+
+
+def _row(**cells: str) -> dict[str, str]:
+    row = dict.fromkeys(COLUMNS, "")
+    row.update(status="stable", filter_model="real-air", air="calm", replicate="0")
+    row.update(cells)
+    return row
+
+
+def test_matrix_summary_on_a_hand_made_run_set() -> None:
+    from immukf_sitl.experiments.campaign_report import (
+        matrix_markdown,
+        matrix_summary,
+        pre_fault_declarations,
+    )
+
+    def imm(fault: str, **cells: str) -> dict[str, str]:
+        return _row(variant="imm", fault=fault, fault_t_s="40", **cells)
+
+    rows = [
+        imm("none", fault_free_s="117", false_declarations_fault_free="1", declarations="q@50.00",
+            est_att_max_deg="2", est_att_mse_deg2="1.5"),
+        _row(variant="ukf2", fault="none", est_att_max_deg="1", est_att_mse_deg2="1.0"),
+        _row(variant="ukf3", fault="none", est_att_max_deg="3", est_att_mse_deg2="4.0"),
+        imm("q", observable_t_s="41", detection_delay_s="0.4", identified="q",
+            identified_ok="true", identified_within_1s="true", fault_free_s="37",
+            false_declarations_fault_free="1", declarations="x@30.00 q@41.40"),
+        imm("p", observable_t_s="42", detection_delay_s="1.6", identified="p",
+            identified_ok="true", identified_within_1s="false", fault_free_s="37",
+            false_declarations_fault_free="0", declarations="p@43.60"),
+        imm("y", observable_t_s="", identified="none", identified_ok="false",
+            identified_within_1s="false", fault_free_s="37", false_declarations_fault_free="0"),
+        imm("r", observable_t_s="45", identified="x", identified_ok="false",
+            identified_within_1s="false", fault_free_s="37", false_declarations_fault_free="0",
+            declarations="x@46.00", status="critical", failure="diverged", failure_t_s="47"),
+        imm("z", status="error"),  # failed to run: left out
+    ]  # fmt: skip
+    assert pre_fault_declarations(rows[3]) == ["x"]
+    assert pre_fault_declarations(rows[0]) == ["q"]
+    assert pre_fault_declarations(rows[6]) == []
+    summary = matrix_summary(rows)["real-air"]
+    ident = summary["overall"]["identification"]
+    counts = (ident["observable"], ident["identified_within_1s"], ident["not_observable"])
+    assert counts == (3, 1, 1)
+    assert (ident["identified_later"], ident["wrong_mode_first"], ident["missed"]) == (1, 1, 0)
+    assert ident["identified_within_1s_share"] == pytest.approx(1 / 3)
+    assert ident["by_channel"]["q"] == {"observable": 1, "identified_within_1s": 1}
+    false = summary["overall"]["false_declarations"]
+    assert false["declarations"] == 2 and false["hours"] == pytest.approx(265.0 / 3600.0, abs=1e-6)
+    assert false["by_mode"] == {"q": 1, "x": 1} and false["runs_with_declarations"] == 2
+    (flight,) = summary["flights"]
+    assert flight["imm_over_ukf2_mse"] == pytest.approx(1.5)
+    att = summary["overall"]["attitude"]
+    assert att["flights_within_ratio"] == 0 and att["flights_compared"] == 1
+    assert summary["done_when"] == {
+        "identified_within_1s": False,
+        "no_false_declarations_in_1h": False,
+        "attitude_within_1_2x_of_ukf2": False,
+    }
+    assert [c["failure"] for c in summary["critical"]] == ["diverged"]
+    text = matrix_markdown(matrix_summary(rows))
+    assert "### Filter model `real-air`" in text and "| calm | 3 | 1 | 33 % |" in text
+    assert "| 1.50 |" in text and "**not met**" in text
+
+
+def test_a_partial_runs_csv_gets_its_matrix_report(tmp_path: Path, capsys) -> None:
+    import yaml
+
+    from immukf_sitl.experiments import campaign_report
+    from immukf_sitl.experiments.campaign_run import write_rows
+
+    path = tmp_path / "m.yaml"
+    data = yaml.safe_load((CAMPAIGNS / "real_air.yaml").read_text())
+    path.write_text(yaml.safe_dump(data))
+    runs = load_campaign(path).runs()
+    imm_q = next(r for r in runs if r.variant == "imm" and r.mode.name == "q")
+    rows = [
+        _row(run_id=imm_q.run_id, variant="imm", fault="q", fault_t_s=f"{imm_q.fault_t_s:g}",
+             observable_t_s="50", detection_delay_s="0.3", identified="q",
+             identified_ok="true", identified_within_1s="true", fault_free_s="40",
+             false_declarations_fault_free="0"),
+        _row(run_id="imm/q/r9/t1/closed/calm/real-air"),  # not this campaign's: left out
+    ]  # fmt: skip
+    write_rows(tmp_path / "runs.csv", rows)
+    assert campaign_report.main([str(path), str(tmp_path)]) == 0
+    assert capsys.readouterr().out.strip().endswith(f"1 of {len(runs)} runs")
+    report = (tmp_path / "report.md").read_text()
+    assert "issue 9's measurement" in report and "| calm | 1 | 1 | 100 % |" in report
+    assert (tmp_path / "delays.png").stat().st_size > 0
+    matrix = json.loads((tmp_path / "matrix.json").read_text())
+    assert matrix["real-air"]["overall"]["false_declarations"]["hours"] == pytest.approx(
+        40 / 3600, abs=1e-6
+    )
+
+
+def test_shipped_real_air_campaigns_are_issue_9s_matrix() -> None:
+    real = load_campaign(CAMPAIGNS / "real_air.yaml")
+    runs = real.runs()
+    assert len(runs) == 3 * 3 * (7 + 1 + 1) and real.report == "matrix"
+    assert {r.filter_model for r in runs} == {"real-air"}
+    assert [a.name for a in real.air] == ["calm", "wind6-light", "wind10-moderate"]
+    imm = [r for r in runs if r.variant == "imm"]
+    assert len(imm) == 63 and all(20 <= r.fault_t_s <= 80 for r in imm)
+    assert {r.scenario.duration_s for r in runs} == {120.0}
+    assert all(r.scenario.sensors.imu.bias_instability for r in runs)
+    assert all(r.scenario.airframe.uncertainty.aero == 0.10 for r in runs)
+    paper = load_campaign(CAMPAIGNS / "real_air_paper.yaml").runs()
+    assert [(r.seed, r.fault_t_s, r.air) for r in paper] == [
+        (r.seed, r.fault_t_s, r.air) for r in runs
+    ]
+    assert {r.filter_model for r in paper} == {"paper"}
+    twin = load_campaign(CAMPAIGNS / "real_air_twin.yaml").runs()
+    assert len(twin) == 27 and all(r.scenario.wind.speed_mps == 0 for r in twin)
+    assert all(not r.scenario.sensors.imu.bias_instability for r in twin)
+    assert all(r.scenario.airframe.uncertainty.aero == 0 for r in twin)
+    twin_paper = load_campaign(CAMPAIGNS / "real_air_twin_paper.yaml").runs()
+    assert [r.fault_t_s for r in twin_paper] == [r.fault_t_s for r in twin]

@@ -17,7 +17,14 @@ A wrong file gets one line naming the file, the field and what was expected
       ukf2: all_64                 # a list of modes: [none, q, x+q]
       ukf3: all_64
       imm: single
-    fault_times_s: [5.0]           # optional axis (default [5.0]): when the channels go dead
+    fault_times_s: [5.0]           # optional axis (default [5.0]): when the channels go dead;
+                                   # or {uniform: [20, 80]}: one time per (replicate, air entry,
+                                   # fault set), drawn from the seed (see "Random fault times")
+    filter_model: paper            # optional axis: paper (FilterTuning(), 12 states) | real-air
+                                   # (FilterTuning.real_air(), 27 states), or a list of both
+    report: paper                  # optional: paper (Tables 1-3 beside the paper's) | matrix
+                                   # (issue 9's measurement: identification within 1 s, false
+                                   # declarations per hour, attitude IMM/UKF-2, per air)
     loop: [closed]                 # optional axis: closed (autopilot on the estimate) | open
                                    # (on truth)
     air:                           # optional axis (default one entry: the scenario's own air)
@@ -32,9 +39,25 @@ A wrong file gets one line naming the file, the field and what was expected
       stop: true                   # end a run at its first critical failure
     figure: {variant: imm, fault: q}   # optional: the run re-flown for fig2.png
 
-The runs are the product, in this order: air, loop, fault time, variant (ukf1, ukf2, ukf3, imm),
-fault set (Table 2 order), replicate. A run's index is its place in that order; nothing random
-depends on it, so results do not depend on how many jobs run them.
+The runs are the product, in this order: filter model, air, loop, fault time, variant (ukf1,
+ukf2, ukf3, imm), fault set (Table 2 order), replicate. A run's index is its place in that order;
+nothing random depends on it, so results do not depend on how many jobs run them.
+
+**Airframe draws.** A scenario's ``airframe: uncertainty`` is drawn from the scenario seed
+(:func:`immukf_sitl.models.airframe.airframe_factors`), and the scenario seed of replicate ``r``
+is :meth:`Campaign.replicate_seed` ``(r)``, which depends on nothing but the campaign seed and
+``r``. So replicate ``r`` is airframe draw ``r``: the same aircraft in every air entry, loop,
+fault time, variant, fault set and filter model (unless an air entry brings its own
+``airframe:`` block). The sensor noise, IMU biases and turbulence of replicate ``r`` are the
+same across them too (common random numbers).
+
+**Random fault times.** With ``fault_times_s: {uniform: [lo, hi]}`` the fault time of a run is
+drawn uniformly in ``[lo, hi]`` (rounded to 10 ms, the IMU's period) from
+``SeedSequence(seed, spawn_key=(FAULT_TIME_STREAM, r, crc32(air name), fault set bits))``: the
+same for every variant, loop and filter model of a cell, so that UKF-2, UKF-3 and the IMM of
+one cell lose the channel at the same moment, different across replicates, airs and fault sets,
+and independent of ``--jobs``. A fault-free run has a drawn time too; nothing uses it but its
+``run_id``.
 """
 
 from __future__ import annotations
@@ -42,6 +65,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import zlib
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -57,6 +81,14 @@ from immukf_sitl.service.filters import VARIANTS
 
 LOOPS = ("closed", "open")
 FAULT_SET_NAMES = ("all_64", "single")
+#: ``filter_model`` values (as ``--filter-model``): the paper's 12-state model, the 27-state one
+FILTER_MODELS = ("paper", "real-air")
+#: ``report`` values: the paper's tables, or issue 9's matrix measurement
+REPORT_KINDS = ("paper", "matrix")
+#: first element of the spawn key of the fault-time draws (apart from the replicates' ``(r,)``)
+FAULT_TIME_STREAM = 0xFA17
+#: drawn fault times are rounded to this (s): the IMU's period
+FAULT_TIME_RESOLUTION_S = 0.01
 #: scenario fields a campaign sets itself
 _CAMPAIGN_SCENARIO_FIELDS = ("name", "seed", "faults", "expect")
 
@@ -91,6 +123,21 @@ class AirSpec:
 
 
 @dataclass(frozen=True)
+class UniformFaultTimes:
+    """``fault_times_s: {uniform: [lo, hi]}``: one drawn time per (replicate, air, fault set)."""
+
+    lo_s: float
+    hi_s: float
+
+    def draw(self, seed: int, replicate: int, air: str, mode: FaultMode) -> float:
+        """The fault time of a cell (s), rounded to :data:`FAULT_TIME_RESOLUTION_S`."""
+        key = (FAULT_TIME_STREAM, replicate, zlib.crc32(air.encode("utf-8")), mode.bits)
+        rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=key))
+        t_s = float(rng.uniform(self.lo_s, self.hi_s))
+        return round(round(t_s / FAULT_TIME_RESOLUTION_S) * FAULT_TIME_RESOLUTION_S, 6)
+
+
+@dataclass(frozen=True)
 class RunSpec:
     """One run of a campaign: everything a worker needs, picklable.
 
@@ -112,6 +159,8 @@ class RunSpec:
     scenario : Scenario
         The flight, with its seed and fault.
     failure : FailureCriterion
+    filter_model : str
+        ``paper`` or ``real-air``: the tuning of the estimator (:func:`filter_tuning`).
     """
 
     index: int
@@ -124,13 +173,14 @@ class RunSpec:
     air: str
     scenario: Scenario
     failure: FailureCriterion
+    filter_model: str = "paper"
 
     @property
     def run_id(self) -> str:
         """A stable key of the run (``--resume`` matches rows by it)."""
         return (
             f"{self.variant}/{self.mode.name}/r{self.replicate}/t{self.fault_t_s:g}/"
-            f"{self.loop}/{self.air}"
+            f"{self.loop}/{self.air}/{self.filter_model}"
         )
 
 
@@ -151,20 +201,23 @@ class Campaign:
     replicates: int
     scenario: Mapping[str, Any]
     variants: tuple[tuple[str, tuple[FaultMode, ...]], ...]
-    fault_times_s: tuple[float, ...] = (5.0,)
+    fault_times_s: tuple[float, ...] | UniformFaultTimes = (5.0,)
     loops: tuple[str, ...] = ("closed",)
     air: tuple[AirSpec, ...] = (AirSpec("default"),)
     failure: FailureCriterion = field(default_factory=FailureCriterion)
     figure: FigureSpec = field(default_factory=FigureSpec)
     description: str = ""
     path: str = ""
+    filter_models: tuple[str, ...] = ("paper",)
+    report: str = "paper"
 
     @property
     def digest(self) -> str:
         """Everything that decides the runs' results, as canonical JSON (``--resume`` checks it).
 
         The variants, fault sets, replicates and loops are not in it: they choose which runs
-        there are, and a run's row is found by its ``run_id``.
+        there are, and a run's row is found by its ``run_id``. The filter models are in it
+        (as well as in the ``run_id``), so that ``--resume`` refuses a changed model.
         """
         data = {
             "seed": self.seed,
@@ -172,6 +225,7 @@ class Campaign:
             "fault_times_s": self.fault_times_s,
             "air": [(a.name, a.blocks) for a in self.air],
             "failure": self.failure.__dict__,
+            "filter_models": self.filter_models,
         }
         return json.dumps(data, sort_keys=True, default=str)
 
@@ -179,6 +233,18 @@ class Campaign:
         """The scenario seed of replicate ``replicate`` (child ``replicate`` of the seed)."""
         sequence = np.random.SeedSequence(self.seed, spawn_key=(replicate,))
         return int(sequence.generate_state(1)[0])
+
+    def fault_times_for(self, replicate: int, air: AirSpec, mode: FaultMode) -> tuple[float, ...]:
+        """The fault times of a cell: the listed ones, or the one drawn for it."""
+        if isinstance(self.fault_times_s, UniformFaultTimes):
+            return (self.fault_times_s.draw(self.seed, replicate, air.name, mode),)
+        return self.fault_times_s
+
+    def _time_slots(self) -> int:
+        """How many fault times each cell has (1 when drawn)."""
+        if isinstance(self.fault_times_s, UniformFaultTimes):
+            return 1
+        return len(self.fault_times_s)
 
     def scenario_for(
         self, mode: FaultMode, replicate: int, fault_t_s: float, air: AirSpec
@@ -219,26 +285,33 @@ class Campaign:
     def runs(self) -> tuple[RunSpec, ...]:
         """Every run, in the campaign's order."""
         out: list[RunSpec] = []
-        for air in self.air:
-            for loop in self.loops:
-                for fault_t_s in self.fault_times_s:
-                    for variant, modes in self.variants:
-                        for mode in modes:
-                            for replicate in range(self.replicates):
-                                out.append(
-                                    RunSpec(
-                                        index=len(out),
-                                        variant=variant,
-                                        mode=mode,
-                                        replicate=replicate,
-                                        seed=self.replicate_seed(replicate),
-                                        fault_t_s=fault_t_s,
-                                        loop=loop,
-                                        air=air.name,
-                                        scenario=self.scenario_for(mode, replicate, fault_t_s, air),
-                                        failure=self.failure,
-                                    )
-                                )
+        cells = [
+            (model, air, loop, slot, variant, mode, replicate)
+            for model in self.filter_models
+            for air in self.air
+            for loop in self.loops
+            for slot in range(self._time_slots())
+            for variant, modes in self.variants
+            for mode in modes
+            for replicate in range(self.replicates)
+        ]
+        for model, air, loop, slot, variant, mode, replicate in cells:
+            fault_t_s = self.fault_times_for(replicate, air, mode)[slot]
+            out.append(
+                RunSpec(
+                    index=len(out),
+                    variant=variant,
+                    mode=mode,
+                    replicate=replicate,
+                    seed=self.replicate_seed(replicate),
+                    fault_t_s=fault_t_s,
+                    loop=loop,
+                    air=air.name,
+                    scenario=self.scenario_for(mode, replicate, fault_t_s, air),
+                    failure=self.failure,
+                    filter_model=model,
+                )
+            )
         return tuple(out)
 
     def figure_run(self) -> RunSpec | None:
@@ -249,7 +322,8 @@ class Campaign:
             return None
         for variant, modes in self.variants:
             if variant == self.figure.variant and mode in modes:
-                air, t_s = self.air[0], self.fault_times_s[0]
+                air = self.air[0]
+                t_s = self.fault_times_for(0, air, mode)[0]
                 return RunSpec(
                     index=-1,
                     variant=variant,
@@ -261,6 +335,7 @@ class Campaign:
                     air=air.name,
                     scenario=self.scenario_for(mode, 0, t_s, air),
                     failure=self.failure,
+                    filter_model=self.filter_models[0],
                 )
         return None
 
@@ -383,6 +458,40 @@ def _number_list(r: _Fields, key: str, default: list[float], lo: float) -> tuple
     return tuple(float(v) for v in value)
 
 
+def _fault_times(r: _Fields) -> tuple[float, ...] | UniformFaultTimes:
+    value = r.raw("fault_times_s", [5.0])
+    if not isinstance(value, Mapping):
+        return _number_list(r, "fault_times_s", [5.0], lo=0.0)
+    expected = "a list of times or {uniform: [lo, hi]} with 0 <= lo < hi"
+    bounds = value.get("uniform") if set(value) == {"uniform"} else None
+    ok = (
+        isinstance(bounds, list)
+        and len(bounds) == 2
+        and all(
+            isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
+            for v in bounds
+        )
+        and 0.0 <= bounds[0] < bounds[1]
+    )
+    if not ok:
+        r.fail("fault_times_s", expected, value)
+    return UniformFaultTimes(float(bounds[0]), float(bounds[1]))
+
+
+def _filter_models(r: _Fields) -> tuple[str, ...]:
+    value = r.raw("filter_model", ["paper"])
+    if isinstance(value, str):
+        value = [value]
+    if (
+        not isinstance(value, list)
+        or not value
+        or any(v not in FILTER_MODELS for v in value)
+        or len(set(value)) != len(value)
+    ):
+        r.fail("filter_model", f"{' or '.join(FILTER_MODELS)}, or a list of both", value)
+    return tuple(value)
+
+
 def _loops(r: _Fields) -> tuple[str, ...]:
     value = r.raw("loop", ["closed"])
     if isinstance(value, str):
@@ -463,16 +572,23 @@ def parse_campaign(data: Any, path: str = "<campaign>") -> Campaign:
         replicates=r.integer("replicates", lo=1),
         scenario=_scenario_block(r),
         variants=_variants(r),
-        fault_times_s=_number_list(r, "fault_times_s", [5.0], lo=0.0),
+        fault_times_s=_fault_times(r),
         loops=_loops(r),
         air=_air(r),
         failure=_failure(r),
         figure=figure,
         path=path,
+        filter_models=_filter_models(r),
+        report=r.string("report", "paper"),
     )
+    if campaign.report not in REPORT_KINDS:
+        r.fail("report", " or ".join(REPORT_KINDS), campaign.report)
     r.done()
+    times = campaign.fault_times_s
+    if isinstance(times, UniformFaultTimes):
+        times = (times.hi_s,)  # the latest time a draw can give
     for air in campaign.air:  # every air entry and fault time must make a valid scenario
-        for t_s in campaign.fault_times_s:
+        for t_s in times:
             campaign.scenario_for(FaultMode.from_name("q"), 0, t_s, air)
     return campaign
 

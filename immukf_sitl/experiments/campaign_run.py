@@ -3,9 +3,11 @@
 One run (:func:`execute_run`) flies its scenario in process (:mod:`.inprocess`), closed or open
 loop, stops at the first critical failure if the campaign says so, and returns one row of
 ``runs.csv`` (:data:`COLUMNS`). A run that raises records its error in the row and the campaign
-goes on. Rows are appended to ``runs.csv`` as runs finish; at the end the file is rewritten in
-the campaign's order, so that it is the same whatever ran the runs and in whatever order they
-finished. With ``resume``, runs that already have an error-free row are not flown again.
+goes on. Runs are submitted replicate by replicate (all of replicate 0 first), so that a
+campaign stopped early holds whole replicates. Rows are appended to ``runs.csv`` as runs
+finish; at the end the file is rewritten in the campaign's order, so that it is the same
+whatever ran the runs and in whatever order they finished. With ``resume``, runs that already
+have an error-free row are not flown again.
 """
 
 from __future__ import annotations
@@ -13,6 +15,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import subprocess
 import sys
 import time
 from collections.abc import Iterable, Sequence
@@ -31,6 +34,7 @@ from immukf_sitl.experiments.metrics import (
     identification_metrics,
 )
 from immukf_sitl.service.pipeline import PipelineConfig
+from immukf_sitl.service.tuning import FilterTuning
 
 #: The columns of ``runs.csv``, in order (docs/report.md defines each).
 COLUMNS: tuple[str, ...] = (
@@ -45,6 +49,7 @@ COLUMNS: tuple[str, ...] = (
     "fault_t_s",
     "loop",
     "air",
+    "filter_model",
     "status",
     "failure",
     "failure_t_s",
@@ -64,6 +69,9 @@ COLUMNS: tuple[str, ...] = (
     "identified_ok",
     "identified_within_1s",
     "false_declarations",
+    "fault_free_s",
+    "false_declarations_fault_free",
+    "declarations",
     "realignments",
     "error",
 )
@@ -95,15 +103,26 @@ def _identity(spec: RunSpec) -> dict[str, object]:
         "fault_t_s": spec.fault_t_s,
         "loop": spec.loop,
         "air": spec.air,
+        "filter_model": spec.filter_model,
     }
 
 
+def filter_tuning(filter_model: str) -> FilterTuning:
+    """The estimator's tuning of a campaign's ``filter_model`` (as ``--filter-model``)."""
+    if filter_model == "real-air":
+        return FilterTuning.real_air()
+    if filter_model == "paper":
+        return FilterTuning()
+    raise ValueError(f"filter_model {filter_model!r}: expected paper or real-air")
+
+
 def fly(spec: RunSpec) -> tuple[InProcessRun, FailureMonitor]:
-    """Fly one run: its variant, fault and loop, stopped by the failure criterion."""
+    """Fly one run: its variant, fault, loop and filter model, stopped by the failure criterion."""
     scenario = spec.scenario
     config = PipelineConfig(
         variant=spec.variant,
         true_mode=spec.mode if spec.variant == "ukf1" else None,
+        tuning=filter_tuning(spec.filter_model),
         sensors=scenario.sensors.spec_sheet(),
     )
     monitor = FailureMonitor(spec.failure, config.detector.settle_s)
@@ -119,7 +138,7 @@ def execute_run(spec: RunSpec) -> dict[str, str]:
         run, monitor = fly(spec)
         settle_s = run.pipeline.config.detector.settle_s
         row.update(error_metrics(run, settle_s))
-        identification = identification_metrics(spec, run)
+        identification = identification_metrics(spec, run, settle_s)
         if spec.variant != "imm":  # a single filter declares nothing: only when it showed
             identification = {"observable_t_s": identification["observable_t_s"]}
         row.update(identification)
@@ -227,6 +246,37 @@ class CampaignResult:
     skipped: int
 
 
+def source_commit() -> str:
+    """The commit of the estimator that flies the runs (recorded in ``campaign.json``).
+
+    A ``SOURCE_COMMIT`` file beside the package (a ``git archive`` snapshot) wins; otherwise
+    ``git rev-parse HEAD`` of the package's repository, with ``+dirty`` when the estimator's
+    sources differ from it; ``unknown`` when neither is there.
+    """
+    root = Path(__file__).resolve().parents[2]
+    stamp = root / "SOURCE_COMMIT"
+    if stamp.exists():
+        return stamp.read_text(encoding="utf-8").strip() or "unknown"
+    try:
+        head = subprocess.run(
+            ["git", "-C", str(root), "rev-parse", "HEAD"],
+            capture_output=True,
+            text=True,
+            timeout=10,
+            check=True,
+        ).stdout.strip()
+        dirty = subprocess.run(
+            ["git", "-C", str(root), "status", "--porcelain", "--", "immukf_sitl", "sim"],
+            capture_output=True,
+            text=True,
+            timeout=10,
+            check=True,
+        ).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+    return f"{head}+dirty" if dirty else head
+
+
 def _check_resume(campaign: Campaign, out_dir: Path, resume: bool) -> list[dict[str, str]]:
     """Rows kept from an earlier run of the same campaign (none unless ``resume``)."""
     stamp = out_dir / CAMPAIGN_JSON
@@ -279,8 +329,18 @@ def run_campaign(
     kept = {row["run_id"]: row for row in _check_resume(campaign, out_dir, resume)}
     wanted = {spec.run_id for spec in specs}
     kept = {k: v for k, v in kept.items() if k in wanted}
-    todo = [spec for spec in specs if spec.run_id not in kept]
-    stamp = {"campaign": campaign.name, "digest": campaign.digest, "path": campaign.path}
+    # submitted replicate by replicate: a campaign stopped early (and resumed later) holds
+    # whole replicates of every air and fault set, not every replicate of the first air
+    todo = sorted(
+        (spec for spec in specs if spec.run_id not in kept),
+        key=lambda spec: (spec.replicate, spec.index),
+    )
+    stamp = {
+        "campaign": campaign.name,
+        "digest": campaign.digest,
+        "path": campaign.path,
+        "source_commit": source_commit(),
+    }
     (out_dir / CAMPAIGN_JSON).write_text(json.dumps(stamp, indent=1) + "\n", encoding="utf-8")
     path = out_dir / RUNS_CSV
     write_rows(path, kept.values())

@@ -21,11 +21,18 @@ Definitions (docs/report.md repeats them for readers of the tables):
   became observable (README "What to expect in steady flight"); a run *identifies* its fault
   when the first declaration at or after the fault names the true mode (a fault-free run: no
   declaration at all); false declarations are those of a mode other than the active one.
+- **Fault-free exposure** (issue 9's false declarations per hour): the time a run flies with
+  healthy sensors and the detector listening, from the end of the settling period after the
+  first estimate to the fault (the end of the flight, for a fault-free run, or where a critical
+  failure stopped it). Its false declarations are the declarations inside that window (any
+  declaration there is false: no channel is dead yet). :func:`false_declaration_rate` pools
+  them over runs.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -176,7 +183,60 @@ def error_metrics(run: InProcessRun, settle_s: float) -> dict[str, float]:
     return out
 
 
-def identification_metrics(spec: RunSpec, run: InProcessRun) -> dict[str, object]:
+def fault_free_window_s(
+    first_estimate_s: float | None, settle_s: float, fault_t_s: float | None, end_s: float
+) -> tuple[float, float]:
+    """``(start, end)`` of a run's fault-free exposure (s; ``end <= start`` when empty).
+
+    Parameters
+    ----------
+    first_estimate_s : float or None
+        Time of the filter's first estimate (``None``: it never aligned, no exposure).
+    settle_s : float
+        The detector's settling time after the first estimate.
+    fault_t_s : float or None
+        When the channels went dead (``None`` for a fault-free run).
+    end_s : float
+        The last time flown.
+    """
+    if first_estimate_s is None:
+        return (0.0, 0.0)
+    start = first_estimate_s + settle_s
+    end = end_s if fault_t_s is None else min(end_s, fault_t_s)
+    return (start, end)
+
+
+def false_declaration_rate(rows: Sequence[Mapping[str, str]]) -> dict[str, float]:
+    """False declarations per hour of fault-free exposure pooled over ``runs.csv`` rows.
+
+    Rows without a ``fault_free_s`` (single filters, failed runs) do not count.
+
+    Returns
+    -------
+    dict
+        ``declarations`` (count), ``hours`` (exposure) and ``per_hour`` (nan without exposure).
+    """
+    seconds = count = 0.0
+    for row in rows:
+        try:
+            exposure = float(row["fault_free_s"])
+        except (KeyError, ValueError):
+            continue
+        if not math.isfinite(exposure):
+            continue
+        seconds += exposure
+        count += int(row.get("false_declarations_fault_free") or 0)
+    hours = seconds / 3600.0
+    return {
+        "declarations": count,
+        "hours": hours,
+        "per_hour": count / hours if hours > 0 else math.nan,
+    }
+
+
+def identification_metrics(
+    spec: RunSpec, run: InProcessRun, settle_s: float = 0.0
+) -> dict[str, object]:
     """Detection delay, identified mode and false declarations of a run (IMM figures)."""
     summary = run.summary()
     outcome = summary.faults[0] if summary.faults else None
@@ -188,6 +248,12 @@ def identification_metrics(spec: RunSpec, run: InProcessRun) -> dict[str, object
         identified = summary.detections[0].mode.name if summary.detections else "none"
         correct = not summary.detections
     delay = None if outcome is None else outcome.detection_delay_s
+    first = run.history.outputs[0].t_s if run.history.outputs else None
+    end_s = run.records[-1].time_s if run.records else 0.0
+    start, stop = fault_free_window_s(
+        first, settle_s, spec.fault_t_s if spec.mode.bits else None, end_s
+    )
+    early = [e for e in summary.detections if start <= e.t_s < stop]
     return {
         "observable_t_s": None if outcome is None else outcome.observable_t_s,
         "detected_t_s": None if outcome is None else outcome.detected_t_s,
@@ -197,4 +263,7 @@ def identification_metrics(spec: RunSpec, run: InProcessRun) -> dict[str, object
         "identified_within_1s": correct
         and (not spec.mode.bits or (delay is not None and delay <= 1.0)),
         "false_declarations": len(summary.false_alarms),
+        "fault_free_s": max(0.0, stop - start),
+        "false_declarations_fault_free": len(early),
+        "declarations": " ".join(f"{e.mode.name}@{e.t_s:.2f}" for e in summary.detections),
     }
