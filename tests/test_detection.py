@@ -67,3 +67,55 @@ def test_bad_thresholds_are_rejected():
 def test_a_single_mode_bank_declares_nothing():
     det = FaultDetector(MODES[5:6], DetectorConfig(dwell_s=0.0, settle_s=0.0), 0.0)
     assert det.update(0.0, np.array([1.0])) == [] and det.update(1.0, np.array([1.0])) == []
+
+
+SIGMAS = np.array([0.0245] * 3 + [0.00227] * 3)
+
+
+def _imu(rng, q_radps):
+    """Six readings of healthy sensors about a flight with q = ``q_radps`` (others near 0.5)."""
+    imu = np.array([0.5, 0.5, -9.8, 0.05, q_radps, 0.05]) + rng.normal(0.0, SIGMAS)
+    return imu
+
+
+def test_a_fault_is_declared_only_while_its_channel_reads_zero_plus_noise():
+    """The IMM's probability alone does not declare a q fault while the q gyro reads 0.05 rad/s."""
+    rng = np.random.default_rng(11)
+    det = FaultDetector(MODES, DetectorConfig(dwell_s=0.1, settle_s=0.0), 0.0)
+    events = []
+    for k in range(100):  # q mode certain, but the gyro reads a turn: a model error, not a fault
+        events += det.update(k * 0.01, _probs(0.99), _imu(rng, 0.05), SIGMAS)
+    assert events == []
+    dead_from = 100
+    for k in range(dead_from, 200):  # the gyro dies: zero plus its noise
+        events += det.update(k * 0.01, _probs(0.99), _imu(rng, 0.0) * [1, 1, 1, 1, 0, 1]
+                             + [0, 0, 0, 0, rng.normal(0.0, SIGMAS[4]), 0], SIGMAS)  # fmt: skip
+    assert [(e.kind, e.mode.name) for e in events] == [("detected", "q")]
+    # declared once a full window (20 samples) of zeros is in: dead at 1.00 s, window full at
+    # 1.19 s, which is after the 0.1 s dwell
+    assert events[0].t_s == pytest.approx(1.19)
+
+
+def test_the_zero_test_rejects_a_dead_channel_at_its_stated_rate():
+    """Chi-square over the window: a zeroed channel fails the test 1 - zero_quantile of the time."""
+    cfg = DetectorConfig(zero_window=20, zero_quantile=0.99)
+    det = FaultDetector(MODES, cfg, 0.0)
+    rng = np.random.default_rng(5)
+    q_mode = MODES[5]
+    rejected = 0
+    n = 4000
+    for _ in range(n):
+        det._recent.clear()
+        for _ in range(cfg.zero_window):
+            det._recent.append(rng.normal(0.0, 1.0, 6))
+        rejected += not det.reads_zero(q_mode)
+    rate = rejected / n
+    # binomial: 1 % of 4000 is 40 +- 6.3; four sigma either side
+    assert 0.01 - 4 * 0.00157 < rate < 0.01 + 4 * 0.00157
+
+
+def test_zero_test_settings_are_checked():
+    with pytest.raises(ValueError, match="zero test"):
+        DetectorConfig(zero_window=0)
+    with pytest.raises(ValueError, match="zero test"):
+        DetectorConfig(zero_quantile=1.0)

@@ -114,10 +114,19 @@ def test_wind_noise_is_the_dryden_driving_noise(params) -> None:
     h_ft = 150.0 / 0.3048
     assert length[2] == pytest.approx(150.0)  # L_w = h
     assert length[0] == pytest.approx(h_ft / (0.177 + 0.000823 * h_ft) ** 1.2 * 0.3048)
-    sigma_w = 0.1 * 30.0 * 0.514444
-    psd_w = 2.0 * sigma_w**2 * 25.0 / length[2]
-    assert noise.stationary_sigma[WIND][2] ** 2 == pytest.approx(psd_w)
-    assert noise.decay_per_s[WIND].tolist() == [0.0, 0.0, 0.0]  # a random walk
+    sigma_w = 0.1 * 30.0 * 0.514444  # MIL-F-8785C: sigma_w = 0.1 W20
+    sigma_u = sigma_w / (0.177 + 0.000823 * h_ft) ** 0.4
+    psd_u = 2.0 * sigma_u**2 * 25.0 / length[0]
+    # horizontal: a random walk (any steady wind is learnt) driven by the Dryden PSD
+    assert noise.stationary_sigma[WIND][0] ** 2 == pytest.approx(psd_u)
+    assert noise.decay_per_s[WIND].tolist()[:2] == [0.0, 0.0]
+    # vertical: the Dryden gust itself, zero mean over level ground (sigma_w, rate V / L_w)
+    assert noise.stationary_sigma[WIND][2] == pytest.approx(sigma_w)
+    assert noise.decay_per_s[WIND][2] == pytest.approx(25.0 / length[2])
+    assert noise.initial_sigma[WIND][2] == pytest.approx(sigma_w)
+    a = math.exp(-noise.decay_per_s[WIND][2] * 0.01)
+    q = noise.step_variance(0.01)[WIND][2]
+    assert a * a * sigma_w**2 + q == pytest.approx(sigma_w**2, rel=1e-12)
 
 
 def test_no_bias_on_the_spec_sheet_means_inert_bias_states(params) -> None:

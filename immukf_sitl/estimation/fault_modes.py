@@ -237,11 +237,12 @@ class ObservabilityGate:
         out = np.array(log_likelihood, dtype=float)
         for j, i in self._failed:
             s_healthy = float(innovation_cov[healthy, i, i])
-            if abs(own[i, j]) > self.n_sigma * np.sqrt(s_healthy):
-                continue  # observable: the reading decides
+            nu = innovation[healthy, i]
+            healthy_says = z[i] - nu
+            if min(abs(own[i, j]), abs(healthy_says)) > self.n_sigma * np.sqrt(s_healthy):
+                continue  # both models say the channel reads away from zero: the reading decides
             r = self.noise_var[i]
             zero_fit = -0.5 * (z[i] * z[i] / r + np.log(2.0 * np.pi * r))
-            nu = innovation[healthy, i]
             healthy_fit = -0.5 * (nu * nu / s_healthy + np.log(2.0 * np.pi * s_healthy))
             out[j] += healthy_fit - zero_fit
         return out

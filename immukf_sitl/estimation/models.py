@@ -68,10 +68,17 @@ class ProcessModel:
     angle_idx : tuple of int
         State components that are angles (wrapped residuals, circular means).
     state_noise_cov : ndarray, shape (nx, nx), optional
-        Covariance the augmented form adds to ``P(k+1|k)`` for noise that ``f`` does not take
-        through ``v``: the driving noise of slowly varying states (random walks, Gauss-Markov
-        processes), linear in the state, which needs no sigma points of its own. The additive
-        form's ``additive_noise_cov`` must include it.
+        Driving noise of slowly varying states that ``f`` does not take through ``v`` (random
+        walks, Gauss-Markov processes, linear in the state), referred to the start of the step:
+        the augmented form adds it to ``P(k|k)`` before drawing the sigma points, so that it
+        reaches the update's cross-covariances as well as ``P(k+1|k)``. For
+        ``x(k+1) = a x(k) + w``, ``Var w = q``, it is ``q / a^2``. The additive form's
+        ``additive_noise_cov`` must hold the same noise referred to the step's end (``q``).
+    consider_idx : tuple of int
+        Consider states (Schmidt-Kalman): their uncertainty enters every prediction and gain
+        of the others, but no measurement moves their mean or shrinks their own covariance
+        (their rows of the gain are zero). For nuisance states the data cannot separate from
+        others, e.g. a GPS receiver's slowly wandering error beside the position.
     """
 
     f: ProcessFn
@@ -80,6 +87,7 @@ class ProcessModel:
     additive_noise_cov: np.ndarray | None = None
     angle_idx: tuple[int, ...] = ()
     state_noise_cov: np.ndarray | None = None
+    consider_idx: tuple[int, ...] = ()
     noise_sqrt: np.ndarray = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -92,6 +100,10 @@ class ProcessModel:
                 if cov.shape != (self.nx, self.nx):
                     raise ValueError(f"{name} must be ({self.nx}, {self.nx})")
                 object.__setattr__(self, name, cov)
+        consider = tuple(int(i) for i in self.consider_idx)
+        if any(not 0 <= i < self.nx for i in consider) or len(set(consider)) != len(consider):
+            raise ValueError(f"consider_idx must be distinct states of 0..{self.nx - 1}")
+        object.__setattr__(self, "consider_idx", consider)
 
     @property
     def nv(self) -> int:

@@ -276,14 +276,17 @@ class UnscentedKalmanFilter:
         kern = self.kernels
         diag = self.diagnostics
         proc = self.process
-        augmented = self.noise_form == "augmented"
         batch, nx = mean.shape
 
         # P(k|k) symmetrised and factored; a factor the kernel doubts goes to the repairs
         sym = np.empty_like(cov)
         chol = np.empty_like(cov)
         diag.symmetrised += batch
-        if not kern.factor(cov, sym, chol):
+        augmented = self.noise_form == "augmented"
+        # the slow states' driving noise rides on the sigma points (referred to the step's
+        # start), so that it reaches P_xz and P_zz of the update, not only P(k+1|k)
+        drawn = cov if not augmented or proc.state_noise_cov is None else cov + proc.state_noise_cov
+        if not kern.factor(drawn, sym, chol):
             chol = robust_cholesky(sym, diag)
         if augmented:
             nv = proc.nv
@@ -297,7 +300,7 @@ class UnscentedKalmanFilter:
             )  # eqs. (9)-(11), (13)
             moved = proc.f(t_s, x_distinct, u, v_distinct)  # eq. (14)
             source = _process_column_source(nx + nv, n_aug)
-            added_cov = _zeros(nx) if proc.state_noise_cov is None else proc.state_noise_cov
+            added_cov = _zeros(nx)
         else:
             weights = self.scheme.weights(nx)
             points = np.empty((nx, batch, 2 * nx + 1))
@@ -374,6 +377,11 @@ class UnscentedKalmanFilter:
                 pred_mean, pred_cov, cross, innovation, z_chol, self._x_angle, new_mean, new_cov,
                 nis, log_likelihood,
             )  # fmt: skip
+        consider = proc.consider_idx
+        if consider:  # Schmidt-Kalman: zero gain rows; P_xc as optimal, P_cc and x_c kept
+            block = np.ix_(range(batch), consider, consider)
+            new_mean[:, consider] = pred_mean[:, consider]
+            new_cov[block] = pred_cov[block]
         diag.symmetrised += 2 * batch  # P_zz and P(k+1|k+1), symmetric by construction
         diag.outlier_innovations += int(np.count_nonzero(nis > outlier_nis_threshold(nz)))
 

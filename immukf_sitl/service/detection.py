@@ -1,7 +1,15 @@
 """Fault declaration from mode probabilities: threshold, dwell, clearing, settling time.
 
 The IMM is decision free (paper, section 2.D); a user needs a decision. A fault mode is
-declared when its probability stays at or above ``threshold`` for ``dwell_s``. It is cleared
+declared when its probability stays at or above ``threshold`` for ``dwell_s`` *and* its failed
+channels read what a zeroed sensor reads: over the last ``zero_window`` samples,
+``sum z^2 / sigma^2`` within the ``zero_quantile`` of a chi-square with that many degrees of
+freedom (the paper's fault is zero plus the sensor's noise). The filters' probabilities weigh a
+channel against the model's prediction of it; on a real airframe in turbulence that model is
+wrong by more than the sensor noise, and a mode that ignores the channel the model explains
+worst wins, whatever the channel reads. A healthy channel whose true value sits within about a
+noise sigma of zero for the whole window passes the test too: there the probabilities decide
+alone. It is cleared
 when its probability stays below ``clear_threshold`` for ``clear_dwell_s`` *and* the declared
 channels have shown they are alive: at least ``alive_samples`` readings more than
 ``alive_sigmas`` noise sigmas from zero since the declaration. A zeroed sensor reads zero plus
@@ -14,10 +22,12 @@ converging from the initial alignment).
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.stats import chi2
 
 from immukf_sitl.estimation.fault_modes import FaultMode
 
@@ -33,6 +43,8 @@ class DetectorConfig:
     settle_s: float = 3.0
     alive_sigmas: float = 5.0
     alive_samples: int = 3
+    zero_window: int = 20
+    zero_quantile: float = 0.999
 
     def __post_init__(self) -> None:
         if not 0.0 < self.clear_threshold <= self.threshold < 1.0:
@@ -42,6 +54,11 @@ class DetectorConfig:
             )
         if min(self.dwell_s, self.clear_dwell_s, self.settle_s) < 0.0:
             raise ValueError("detection dwell and settle times must be >= 0")
+        if self.zero_window < 1 or not 0.0 < self.zero_quantile < 1.0:
+            raise ValueError(
+                "zero test: expected zero_window >= 1 and 0 < zero_quantile < 1, got "
+                f"{self.zero_window} and {self.zero_quantile}"
+            )
 
 
 @dataclass(frozen=True)
@@ -96,6 +113,23 @@ class FaultDetector:
         self._above_since: dict[int, float] = {}
         self._below_since: float | None = None
         self._alive = 0  # readings of the declared channels beyond the noise since declared
+        self._recent: deque[np.ndarray] = deque(maxlen=config.zero_window)
+        # chi-square limits for 1 .. zero_window readings
+        dof = np.arange(1, config.zero_window + 1)
+        self._zero_limit = chi2.ppf(config.zero_quantile, dof)
+
+    def reads_zero(self, mode: FaultMode) -> bool:
+        """Whether every failed channel of ``mode`` read zero plus noise over the window.
+
+        Over the readings there are when fewer than ``zero_window`` have been seen (the
+        detector's first samples); True with none (the probabilities decide alone).
+        """
+        n = len(self._recent)
+        if n == 0:
+            return True
+        failed = mode.healthy_mask == 0.0
+        energy = np.sum(np.square(np.array(self._recent)), axis=0)
+        return bool(np.all(energy[failed] <= self._zero_limit[n - 1]))
 
     def update(
         self,
@@ -114,6 +148,9 @@ class FaultDetector:
         events: list[DetectionEvent] = []
         if len(self.modes) < 2:  # a single filter (UKF-1/2/3) has nothing to decide between
             return events
+        if imu is not None and imu_sigmas is not None:
+            n = len(imu_sigmas)
+            self._recent.append(np.asarray(imu, dtype=float)[:n] / np.asarray(imu_sigmas))
         if self.declared is not None and imu is not None and imu_sigmas is not None:
             readings = np.abs(np.asarray(imu)[: len(imu_sigmas)])
             mask = self.declared.healthy_mask == 0.0
@@ -143,7 +180,7 @@ class FaultDetector:
             return events
         for j, since in sorted(self._above_since.items(), key=lambda kv: -probabilities[kv[0]]):
             mode = self.modes[j]
-            if mode == self.declared or t_s - since < cfg.dwell_s:
+            if mode == self.declared or t_s - since < cfg.dwell_s or not self.reads_zero(mode):
                 continue
             if self.declared is not None:
                 events.append(

@@ -34,13 +34,22 @@ from immukf_sitl.estimation import (
     MeasurementModel,
     ObservabilityGate,
     ProcessModel,
+    ScaledSigmaPoints,
     UnscentedKalmanFilter,
     fault_masked_output,
     single_fault_modes,
 )
 from immukf_sitl.estimation.ukf import Backend, NoiseForm
 from immukf_sitl.models.aero import AeroModel
-from immukf_sitl.models.augmented import GPS_ERROR, N_RIGID, AugmentedAeroModel
+from immukf_sitl.models.augmented import (
+    FORCE,
+    GPS_ERROR,
+    GYRO_BIAS,
+    MOMENT,
+    N_RIGID,
+    WIND,
+    AugmentedAeroModel,
+)
 from immukf_sitl.models.earth import NedOrigin
 from immukf_sitl.models.ins import InsModel
 from immukf_sitl.models.params import AircraftParams
@@ -74,9 +83,12 @@ def aero_process_model(
     q = np.diag(sigma**2)
     dt = model.dt_s
     nx = model.nx
-    slow = np.zeros((nx, nx))
+    slow = np.zeros((nx, nx))  # referred to the step's end
+    slow_at_start = np.zeros((nx, nx))  # the same noise before the step's decay
     if noise is not None:
-        slow[N_RIGID:, N_RIGID:] = np.diag(noise.step_variance(dt))
+        q_slow = noise.step_variance(dt)
+        slow[N_RIGID:, N_RIGID:] = np.diag(q_slow)
+        slow_at_start[N_RIGID:, N_RIGID:] = np.diag(q_slow * np.exp(2.0 * noise.decay_per_s * dt))
     # additive form: v held over one step moves velocity and rates by v dt
     additive = slow.copy()
     vel_rates = [3, 4, 5, 9, 10, 11]
@@ -91,8 +103,32 @@ def aero_process_model(
         noise_cov=q,
         additive_noise_cov=additive,
         angle_idx=model.angle_indices,
-        state_noise_cov=slow if noise is not None else None,
+        state_noise_cov=slow_at_start if noise is not None else None,
+        consider_idx=consider_indices(tuning.consider_states) if noise is not None else (),
     )
+
+
+#: the slow-state groups :attr:`FilterTuning.consider_states` may name
+SLOW_STATE_GROUPS = {
+    "wind": WIND,
+    "gyro_bias": GYRO_BIAS,
+    "force": FORCE,
+    "moment": MOMENT,
+    "gps_error": GPS_ERROR,
+}
+
+
+def consider_indices(groups: Sequence[str]) -> tuple[int, ...]:
+    """State indices of the slow-state ``groups`` (names of :data:`SLOW_STATE_GROUPS`)."""
+    out: list[int] = []
+    for name in groups:
+        if name not in SLOW_STATE_GROUPS:
+            raise ValueError(
+                f"consider_states: expected names of {', '.join(SLOW_STATE_GROUPS)}, got {name!r}"
+            )
+        part = SLOW_STATE_GROUPS[name]
+        out.extend(range(N_RIGID + part.start, N_RIGID + part.stop))
+    return tuple(out)
 
 
 def aero_measurement_models(
@@ -377,7 +413,12 @@ def build_aero_estimator(
     else:
         noise, flown = None, model
     process = aero_process_model(flown, noise, sensors, tuning)
-    ukf = UnscentedKalmanFilter(process, JulierSigmaPoints(kappa), noise_form, backend)
+    points = (
+        JulierSigmaPoints(kappa)
+        if tuning.sigma_point_alpha is None
+        else ScaledSigmaPoints(tuning.sigma_point_alpha, 2.0, kappa)
+    )
+    ukf = UnscentedKalmanFilter(process, points, noise_form, backend)
     transition = tuning.transition(modes)
     floor = tuning.probability_floor if len(modes) > 1 else 0.0
 

@@ -100,6 +100,10 @@ def slow_state_noise(
     scale = milspec_scale_lengths_m(tuning.design_height_m)
     stationary[WIND] = np.sqrt(2.0 * gust**2 * tuning.design_airspeed_mps / scale)
     initial[WIND] = [tuning.initial_wind_sigma_mps, tuning.initial_wind_sigma_mps, gust[2]]
+    # vertical wind: no mean over level ground, the Dryden gust itself (sigma_w, L_w / V)
+    down = WIND.start + 2
+    decay[down] = tuning.design_airspeed_mps / scale[2]
+    stationary[down] = gust[2]
 
     # gyro bias: the spec sheet
     instability = imu.bias_instability

@@ -63,6 +63,8 @@ class FilterTuning:
     correction_time_constant_s: float = 10.0
     initial_wind_sigma_mps: float = 10.0
     observability_sigmas: float = 3.0
+    sigma_point_alpha: float | None = None
+    consider_states: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         if self.design_turbulence not in TURBULENCE_LEVELS:
@@ -88,6 +90,8 @@ class FilterTuning:
             "onset_probability": 1e-7,
             "recovery_probability": 1e-7,
             "probability_floor": 1e-9,
+            "sigma_point_alpha": 0.01,
+            "consider_states": ("gps_error",),
         }
         preset.update(changes)
         return cls(**preset)  # type: ignore[arg-type]
