@@ -391,7 +391,11 @@ def test_matrix_summary_on_a_hand_made_run_set() -> None:
             identified_ok="true", identified_within_1s="false", fault_free_s="37",
             false_declarations_fault_free="0", declarations="p@43.60"),
         imm("y", observable_t_s="", identified="none", identified_ok="false",
-            identified_within_1s="false", fault_free_s="37", false_declarations_fault_free="0"),
+            identified_within_1s="false", fault_free_s="37", false_declarations_fault_free="0",
+            flown_s="120"),
+        imm("x", observable_t_s="", identified="none", identified_ok="false", flown_s="30",
+            identified_within_1s="false", fault_free_s="27", false_declarations_fault_free="0",
+            status="critical", failure="diverged", failure_t_s="30"),
         imm("r", observable_t_s="45", identified="x", identified_ok="false",
             identified_within_1s="false", fault_free_s="37", false_declarations_fault_free="0",
             declarations="x@46.00", status="critical", failure="diverged", failure_t_s="47"),
@@ -403,12 +407,12 @@ def test_matrix_summary_on_a_hand_made_run_set() -> None:
     summary = matrix_summary(rows)["real-air"]
     ident = summary["overall"]["identification"]
     counts = (ident["observable"], ident["identified_within_1s"], ident["not_observable"])
-    assert counts == (3, 1, 1)
+    assert counts == (3, 1, 1) and ident["ended_before_fault"] == 1
     assert (ident["identified_later"], ident["wrong_mode_first"], ident["missed"]) == (1, 1, 0)
     assert ident["identified_within_1s_share"] == pytest.approx(1 / 3)
     assert ident["by_channel"]["q"] == {"observable": 1, "identified_within_1s": 1}
     false = summary["overall"]["false_declarations"]
-    assert false["declarations"] == 2 and false["hours"] == pytest.approx(265.0 / 3600.0, abs=1e-6)
+    assert false["declarations"] == 2 and false["hours"] == pytest.approx(292.0 / 3600.0, abs=1e-6)
     assert false["by_mode"] == {"q": 1, "x": 1} and false["runs_with_declarations"] == 2
     (flight,) = summary["flights"]
     assert flight["imm_over_ukf2_mse"] == pytest.approx(1.5)
@@ -419,9 +423,10 @@ def test_matrix_summary_on_a_hand_made_run_set() -> None:
         "no_false_declarations_in_1h": False,
         "attitude_within_1_2x_of_ukf2": False,
     }
-    assert [c["failure"] for c in summary["critical"]] == ["diverged"]
+    assert [c["failure"] for c in summary["critical"]] == ["diverged", "diverged"]
     text = matrix_markdown(matrix_summary(rows))
     assert "### Filter model `real-air`" in text and "| calm | 3 | 1 | 33 % |" in text
+    assert "| calm | 3 | 1 | 33 % | 1 | 1 | 0 | 1 | 1 |" in text
     assert "| 1.50 |" in text and "**not met**" in text
 
 

@@ -471,6 +471,8 @@ def pre_fault_declarations(row: Row) -> list[str]:
 
 def _identification(imm: Sequence[Row]) -> dict[str, object]:
     faulted = [r for r in imm if r["fault"] != "none"]
+    # a run stopped by a critical failure before its fault never had the fault
+    before = [r for r in faulted if _float(r["flown_s"]) < _float(r["fault_t_s"])]
     observable = [r for r in faulted if r["observable_t_s"] != ""]
     within = [r for r in observable if r["identified_within_1s"] == "true"]
     late = [r for r in observable if r["identified_ok"] == "true" and r not in within]
@@ -488,7 +490,8 @@ def _identification(imm: Sequence[Row]) -> dict[str, object]:
     return {
         "faulted_runs": len(faulted),
         "observable": len(observable),
-        "not_observable": len(faulted) - len(observable),
+        "ended_before_fault": len(before),
+        "not_observable": len(faulted) - len(observable) - len(before),
         "identified_within_1s": len(within),
         "identified_within_1s_share": _number(share),
         "identified_later": len(late),
@@ -652,15 +655,16 @@ def matrix_markdown(summary: dict[str, object]) -> str:
         )
         lines.append(
             "| air | observable | identified ≤ 1 s | share | identified later | wrong mode "
-            "first | missed | not observable | delay median / max (s) |"
+            "first | missed | not observable | ended before the fault | delay median / max (s) |"
         )
-        lines.append("|---|---|---|---|---|---|---|---|---|")
+        lines.append("|---|---|---|---|---|---|---|---|---|---|")
         for air, g in groups:
             i = g["identification"]
             lines.append(
                 f"| {air} | {i['observable']} | {i['identified_within_1s']} | "
                 f"{_pct(i['identified_within_1s'], i['observable'])} | {i['identified_later']} | "
                 f"{i['wrong_mode_first']} | {i['missed']} | {i['not_observable']} | "
+                f"{i['ended_before_fault']} | "
                 f"{_n(i['detection_delay_s_median'])} / {_n(i['detection_delay_s_max'])} |"
             )
         lines.append("\nBy channel (identified ≤ 1 s / observable):\n")
@@ -792,7 +796,7 @@ def plot_delays(rows: Sequence[Row], path: Path) -> None:
         ax.set_xticks(range(len(channels)), channels)
         ax.set_ylim(-0.1, top * 1.12)
         ax.set_xlabel("zeroed channel")
-        ax.set_ylabel("delay from observability (s); × not identified")
+        ax.set_ylabel(f"delay from observability (s; > {top:g} at {top:g}); × not identified")
         ax.set_title(f"IMM detection delay, filter model {model}")
         ax.legend(fontsize=8)
     fig.tight_layout()
