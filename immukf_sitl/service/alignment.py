@@ -105,7 +105,8 @@ def align(
     Roll and pitch from the specific force of unaccelerated flight (``f = -R_bn g``:
     ``theta = asin(f_x / |f|)``, ``phi = atan2(-f_y, -f_z)``), yaw from the GPS course (no wind,
     small sideslip), NED velocity from ground speed and course (vertical unknown: 0), rates from
-    the gyros. The sigmas say how rough that is.
+    the gyros. The sigmas say how rough that is: roll and pitch at least the angle the
+    centripetal acceleration ``V |omega|`` the gyros show makes with gravity.
 
     A channel in ``failed_channels`` (the IMM's declared fault, ``x``...``r``) is not trusted,
     and neither is an accelerometer triad that cannot be gravity (:func:`dead_accelerometer`,
@@ -132,6 +133,10 @@ def align(
     phi = float(np.arctan2(-f[1], -f[2]))
     course = float(gps[4])
     speed = float(gps[3])
+    # in a turn or pull-up the specific force is not gravity: it is off by the centripetal
+    # acceleration V |omega|, so roll and pitch are no better than atan(V |omega| / g)
+    turning = float(np.arctan2(speed * np.linalg.norm(rates), STANDARD_GRAVITY_MPS2))
+    euler_sigma[:2] = np.maximum(euler_sigma[:2], turning)
     return NavSolution(
         t_s,
         np.array(gps[:3], dtype=float),

@@ -304,15 +304,17 @@ class AircraftEstimator(_Bank):
         separates the fix ``nav`` took its position from and the true position, so the two
         start fully anti-correlated.
         """
-        rot = body_to_ned(nav.euler_rad)
-        mean = np.concatenate(
-            [nav.position_ned_m, rot.T @ nav.velocity_ned_mps, nav.euler_rad, nav.rates_radps]
-        )
-        sigma = np.concatenate(
-            [nav.position_sigma_m, nav.velocity_sigma_mps, nav.euler_sigma_rad,
-             nav.rates_sigma_radps]
+        euler_sigma = np.array(nav.euler_sigma_rad, dtype=float)
+        if self.noise is not None:  # heading = course: off by the crab of an unknown wind
+            speed = max(float(np.linalg.norm(nav.velocity_ned_mps[:2])), 1.0)
+            crab = np.arctan2(self.noise.initial_sigma[WIND.start], speed)
+            euler_sigma[2] = np.hypot(euler_sigma[2], crab)
+        mean, cov = _body_velocity_state(
+            nav.position_ned_m, nav.velocity_ned_mps, nav.euler_rad, nav.rates_radps,
+            np.concatenate([nav.position_sigma_m, nav.velocity_sigma_mps, euler_sigma,
+                            nav.rates_sigma_radps]),
         )  # fmt: skip
-        mean, cov = self.augmented(mean, np.diag(sigma**2))
+        mean, cov = self.augmented(mean, cov)
         if self.noise is None:
             return self.start(nav.t_s, mean, cov, controls, imu, mode_probabilities)
         errors = np.arange(N_RIGID + GPS_ERROR.start, N_RIGID + GPS_ERROR.stop)
@@ -377,6 +379,37 @@ class AircraftEstimator(_Bank):
             _sigma(cov, slice(6, 9)),
             _sigma(cov, slice(9, 12)),
         )
+
+
+def _body_velocity_state(
+    position_ned_m: np.ndarray,
+    velocity_ned_mps: np.ndarray,
+    euler_rad: np.ndarray,
+    rates_radps: np.ndarray,
+    sigma: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The 12-state mean and covariance of a navigation solution with independent ``sigma``.
+
+    The state holds the velocity in body axes, ``v_b = R_bn v_n``: its uncertainty is that of
+    ``v_n`` and of the attitude (a heading error turns the ground velocity into the body's y
+    axis), correlated with the attitude; first order, with the derivative by central
+    differences.
+    """
+    euler = np.asarray(euler_rad, dtype=float)
+    v_n = np.asarray(velocity_ned_mps, dtype=float)
+    mean = np.concatenate([position_ned_m, body_to_ned(euler).T @ v_n, euler, rates_radps])
+    # Jacobian of [p, v_b, euler, rates] with respect to [p, v_n, euler, rates]
+    jac = np.eye(12)
+    jac[3:6, 3:6] = body_to_ned(euler).T
+    step = 1e-6
+    for i in range(3):
+        d = np.zeros(3)
+        d[i] = step
+        plus = body_to_ned(euler + d).T @ v_n
+        minus = body_to_ned(euler - d).T @ v_n
+        jac[3:6, 6 + i] = (plus - minus) / (2.0 * step)
+    cov = jac @ np.diag(np.asarray(sigma, dtype=float) ** 2) @ jac.T
+    return mean, 0.5 * (cov + cov.T)
 
 
 def build_aero_estimator(
