@@ -39,12 +39,17 @@ def test_bench_json_has_the_promised_fields():
         timeout=300,
     )
     result = json.loads(out.stdout)
-    forms = {row["form"]: row for row in result["results"]}
-    assert set(forms) == {"augmented", "additive"}
-    for row in forms.values():
+    rows = {(row["form"], row["filter_model"]): row for row in result["results"]}
+    assert set(rows) == {
+        (form, model) for form in ("augmented", "additive") for model in ("paper", "real-air")
+    }
+    for (_, model), row in rows.items():
         assert row["modes"] == 7
+        assert row["states"] == (12 if model == "paper" else 27)
         assert 0 < row["median_us"] <= row["p99_us"]
         assert row["diagnostics"]["steps"] >= row["steps"]
+    ratio = rows["augmented", "real-air"]["median_us"] / rows["augmented", "paper"]["median_us"]
+    assert result["real_air_ratio"] == ratio
     assert result["filterpy_ratio"] > 0
     assert "median us" in out.stderr  # the human table goes to stderr
 

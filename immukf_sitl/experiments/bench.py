@@ -26,6 +26,7 @@ from immukf_sitl.models.params import load_aircraft_params
 from immukf_sitl.models.sensors import SensorSpec
 from immukf_sitl.options import add_json_argument
 from immukf_sitl.service.filters import Observation, build_aero_estimator
+from immukf_sitl.service.tuning import FilterTuning
 
 GPS_EVERY_STEPS = 100
 ORIGIN = NedOrigin(-33.87, 151.21, 100.0)
@@ -72,9 +73,15 @@ def initial_cov() -> np.ndarray:
     return np.diag([1.0, 1.0, 1.0, 0.1, 0.1, 0.1, 1e-3, 1e-3, 1e-3, 1e-4, 1e-4, 1e-4])
 
 
-def time_ours(model: AeroModel, data: BenchData, form: str, warmup: int) -> dict:
-    """Per-step times of our 7-mode IMM in one noise form."""
-    est = build_aero_estimator("imm", model, noise_form=form)
+FILTER_MODELS = ("paper", "real-air")
+
+
+def time_ours(
+    model: AeroModel, data: BenchData, form: str, warmup: int, filter_model: str = "paper"
+) -> dict:
+    """Per-step times of our 7-mode IMM in one noise form with the paper or real-air model."""
+    tuning = FilterTuning.real_air() if filter_model == "real-air" else FilterTuning()
+    est = build_aero_estimator("imm", model, tuning=tuning, noise_form=form)
     estimate = est.start(0.0, *est.augmented(data.x0, initial_cov()), data.controls[0])
     times_ns = []
     gps_times_ns = []
@@ -91,6 +98,8 @@ def time_ours(model: AeroModel, data: BenchData, form: str, warmup: int) -> dict
     all_ns = np.array(times_ns + gps_times_ns)
     return {
         "form": form,
+        "filter_model": filter_model,
+        "states": est.imm.ukf.process.nx,
         "modes": len(est.modes),
         "steps": int(all_ns.size),
         "median_us": float(np.median(all_ns) / 1e3),
@@ -156,22 +165,45 @@ def time_filterpy(model: AeroModel, data: BenchData, n_steps: int) -> dict:
     }
 
 
-def run_bench(steps: int, filterpy_steps: int, seed: int = 1) -> dict:
-    """Run every measurement; returns the JSON-ready result."""
+def run_bench(
+    steps: int,
+    filterpy_steps: int,
+    seed: int = 1,
+    filter_models: tuple[str, ...] = ("paper",),
+) -> dict:
+    """Run every measurement; returns the JSON-ready result.
+
+    With both filter models, their runs alternate (paper augmented, real-air augmented, paper
+    additive, ...) so that a change of the machine's load hits both, and ``real_air_ratio`` is
+    the real-air model's augmented median over the paper's.
+    """
     model = AeroModel(load_aircraft_params(), ORIGIN)
     data = make_flight(model, steps, seed)
     warmup = min(50, steps // 10)
-    results = [time_ours(model, data, form, warmup) for form in ("augmented", "additive")]
+    results = [
+        time_ours(model, data, form, warmup, filter_model)
+        for form in ("augmented", "additive")
+        for filter_model in filter_models
+    ]
     result: dict = {
         "benchmark": "7-mode IMM-UKF step over the 6-DOF Aerosonde model, 100 Hz IMU, 1 Hz GPS",
         "machine": {"python": platform.python_version(), "cpu_count": _cpu_count()},
         "model_backend": "numba" if model.uses_numba else "numpy",
         "results": results,
     }
+    medians = {
+        row["filter_model"]: row["median_us"] for row in results if row["form"] == "augmented"
+    }
+    if len(medians) == 2:
+        result["real_air_ratio"] = medians["real-air"] / medians["paper"]
     if filterpy_steps > 0:
         reference = time_filterpy(model, data, filterpy_steps)
         result["filterpy"] = reference
-        ours_imu = results[1]["imu_only_median_us"]
+        ours_imu = next(
+            r["imu_only_median_us"]
+            for r in results
+            if r["form"] == "additive" and r["filter_model"] == "paper"
+        )
         result["filterpy_ratio"] = reference["median_us"] / ours_imu
         result["filterpy_ratio_note"] = (
             "filterpy median / our additive-form IMU-only median (same sigma-point count)"
@@ -191,19 +223,26 @@ def print_human(result: dict) -> None:
     backends = f"model backend: {result['model_backend']}"
     backends += f", filter backend: {result['results'][0]['filter_backend']}"
     print(f"{result['benchmark']} ({backends})", file=out)
-    header = f"{'form':<20}{'modes':>6}{'steps':>7}{'median us':>11}{'p99 us':>10}"
+    header = f"{'form':<20}{'model':>9}{'states':>7}{'modes':>6}{'steps':>7}"
+    header += f"{'median us':>11}{'p99 us':>10}"
     print(f"{header}{'GPS-step us':>13}{'first step ms':>15}", file=out)
     rows = list(result["results"])
     if "filterpy" in result:
         rows.append(result["filterpy"])
     for row in rows:
         line = (
-            f"{row['form']:<20}{row['modes']:>6}{row['steps']:>7}"
+            f"{row['form']:<20}{row.get('filter_model', ''):>9}{row.get('states', ''):>7}"
+            f"{row['modes']:>6}{row['steps']:>7}"
             f"{row['median_us']:>11.1f}{row['p99_us']:>10.1f}"
         )
         if row.get("gps_step_median_us") is not None:
             line += f"{row['gps_step_median_us']:>13.1f}{row['first_step_ms']:>15.1f}"
         print(line, file=out)
+    if "real_air_ratio" in result:
+        print(
+            f"real-air model / paper model (augmented medians): {result['real_air_ratio']:.2f}x",
+            file=out,
+        )
     if "filterpy_ratio" in result:
         print(f"filterpy is {result['filterpy_ratio']:.1f}x slower per step", file=out)
     budget_us = 10_000.0
@@ -218,7 +257,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="time the 7-mode IMM-UKF step (augmented, additive, filterpy reference)",
         description=(
             "Time one IMM-UKF step of the 7-mode bank over the Aerosonde model (100 Hz IMU, a "
-            "GPS fix per 100 steps) in the augmented and additive forms, and the same bank "
+            "GPS fix per 100 steps) in the augmented and additive forms, with the paper's "
+            "12-state model and the real-air 27-state one, and the same bank "
             "built from filterpy's IMMEstimator for comparison. Prints medians and 99th "
             "percentiles in microseconds and the real-time margin at 100 Hz."
         ),
@@ -234,6 +274,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="steps of the (slow) filterpy reference; 0 skips it (default 30)",
     )
     parser.add_argument("--seed", type=int, default=1, help="noise seed (default 1)")
+    parser.add_argument(
+        "--filter-model",
+        choices=(*FILTER_MODELS, "both"),
+        default="both",
+        help=(
+            "the filter's model: the paper's 12 states, the real-air 27 states, or both, "
+            "alternating, with their ratio (default both)"
+        ),
+    )
     parser.set_defaults(handler=_main)
 
 
@@ -252,7 +301,8 @@ def _main(args: argparse.Namespace) -> int:
                 "filterpy is not installed (pip install -e '.[dev]'), or pass --filterpy-steps 0"
             ) from None
     print(f"timing {args.steps} steps per form...", file=sys.stderr)
-    result = run_bench(args.steps, args.filterpy_steps, args.seed)
+    models = FILTER_MODELS if args.filter_model == "both" else (args.filter_model,)
+    result = run_bench(args.steps, args.filterpy_steps, args.seed, models)
     print_human(result)
     if args.json:
         print(json.dumps(result))
