@@ -220,7 +220,14 @@ class JsbsimDriver:
         self._controls = np.array(controls, dtype=float)
         if not fdm.run_ic():
             raise JsbsimError("JSBSim run_ic() failed")
-        self._set_air(calm)  # after run_ic, which resets the atmosphere's wind to the IC's
+        steady = self._set_air(calm)  # after run_ic, which resets the atmosphere's wind
+        if np.any(steady != 0.0) or (not calm and self.wind.level.name != "none"):
+            # recompute the state at time 0 in that air (alpha, beta, forces: the first IMU
+            # sample and the first step's forces) without advancing time; run_ic computed it
+            # in still air, where the wind in the body velocities reads as a sideslip
+            fdm.suspend_integration()
+            fdm.run()
+            fdm.resume_integration()
 
     def _accelerations(self) -> np.ndarray:
         fdm = self._fdm

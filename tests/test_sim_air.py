@@ -28,6 +28,7 @@ from immukf_sitl.models.sensors import ImuSpec
 from immukf_sitl.models.wind import TURBULENCE_LEVELS, WindSpec, milspec_low_altitude_sigmas
 from immukf_sitl.options import FilterOptions
 from immukf_sitl.scenario import ScenarioError, load_scenario, parse_scenario, sensors_to_yaml
+from sim.driver import InitialConditions, JsbsimDriver
 from sim.flight import fly
 from sim.flight_plans import default_flight_plan
 from sim.scenario_flight import flight_from_scenario
@@ -129,10 +130,32 @@ def test_steady_wind_is_read_back_from_the_sims_tlog(tmp_path):
     assert code == 0, err
     truth = read_flight_log(tlog).truth
     assert len(truth) == 501
-    winds = np.array([s.wind_ned_mps for s in truth[1:]])  # from the first step on
+    winds = np.array([s.wind_ned_mps for s in truth])  # time 0 included
     to = math.radians(200.0 + 180.0)
     expected = np.array([8.0 * math.cos(to), 8.0 * math.sin(to), 0.5])
     assert np.abs(winds - expected).max() < 0.1
+
+
+def test_a_start_in_wind_is_the_still_air_trim_moved_with_the_air():
+    """A steady wind changes nothing the aircraft feels at time 0 and after (trim controls
+    held): same airspeed, specific force and rates as the still-air start. The first IMU
+    sample once read a 13 deg sideslip and the first step kicked the roll rate to -14 deg/s:
+    the state at time 0 was computed before the wind was set."""
+    states = {}
+    for name, wind in (("calm", WindSpec()), ("windy", WindSpec(10.0, 270.0, 0.0, "none"))):
+        driver = JsbsimDriver(InitialConditions(airspeed_mps=25.0), wind=wind)
+        trim = driver.trim()
+        first = driver.reset()
+        states[name] = [first] + [driver.step(trim.controls) for _ in range(5)]
+    # what remains is a hundredth of the glitch (the rotating earth's Coriolis on a ground
+    # speed 10 m/s different, the integrator's start): mm/s, cm/s^2
+    for calm, windy in zip(states["calm"], states["windy"], strict=True):
+        assert windy.airspeed_mps == pytest.approx(calm.airspeed_mps, abs=0.01)
+        np.testing.assert_allclose(
+            windy.specific_force_body_mps2, calm.specific_force_body_mps2, atol=0.05
+        )
+        np.testing.assert_allclose(windy.rates_body_radps, calm.rates_body_radps, atol=0.005)
+    np.testing.assert_allclose(states["windy"][0].wind_ned_mps, [0.0, 10.0, 0.0], atol=1e-9)
 
 
 @pytest.mark.parametrize("level", ["light", "moderate"])
