@@ -172,8 +172,8 @@ class ObservabilityGate:
     nothing for or against the fault. Once both models say the channel should read a value
     away from zero, the reading decides: zero-plus-noise (failed) or that value (healthy),
     which is what the mode probabilities then mean. (The fault mode's own prediction alone
-    drifts: nothing corrects it, and on a real airframe in wind it wandered 3 sigma off zero
-    while the channel truly read near zero, handing the mode the zero reading's sharpness.)
+    drifts: nothing corrects it. Measured on the windy set with the detector's zero test in
+    place, requiring both or only the fault mode's gives the same declarations.)
 
     Parameters
     ----------
