@@ -28,12 +28,23 @@ class FilterTuning:
       how fast their error changes with the flight condition;
     - ``initial_wind_sigma_mps``: what is known of the wind at start-up (nothing much).
 
+    ``sigma_point_alpha``: None draws the paper's sigma points (Julier, ``kappa = 0``: at
+    ``sqrt(n)`` sigma, 6 sigma for 33 augmented dimensions); a value draws scaled points at
+    ``alpha sqrt(n)`` sigma (van der Merwe), which keeps them where the aerodynamics are smooth
+    when a sigma is large (the real-air model's initial wind, 10 m/s: Julier points probe
+    60 m/s of wind). ``consider_states`` names slow-state groups kept as Schmidt consider
+    states (:class:`~immukf_sitl.estimation.models.ProcessModel`): their uncertainty is
+    accounted for, their mean never estimated.
+
     ``slow_states`` chooses the model: False is the paper's (the 12 rigid-body states, still
     air, exact sensors and airframe), True the real-air model of issue 9 (15 more states: wind,
     gyro biases, force and moment corrections, GPS error; :mod:`immukf_sitl.models.augmented`),
     which also scores a failed channel only while it is observable
     (:class:`~immukf_sitl.estimation.fault_modes.ObservabilityGate`). :meth:`real_air` is that
-    model with its chain.
+    model with its chain, scaled sigma points (alpha 0.01) and the GPS error as consider
+    states: the receiver's error and the position are told apart only by the dynamics, so an
+    estimated error absorbed every vertical model error (the position drifted 100 m while the
+    error state, 10 sigma off its own prior, held the difference).
 
     The paper model's chain is asymmetric on purpose. ``onset_probability`` is the chance per
     step that the fault-free system develops a given fault; ``recovery_probability`` the chance
