@@ -696,7 +696,8 @@ def matrix_markdown(summary: dict[str, object]) -> str:
             "\n**Attitude estimate error on the fault-free flights** (deg, deg²; each variant "
             "flies its own closed loop on the same airframe, air and noise; the mean rows give "
             "the largest max, the mean MSE, and the IMM/UKF-2 ratio of the MSE summed over the "
-            "flights both flew, with the worst flight's ratio):\n"
+            "flights both flew, with the worst flight's ratio; a critical run's errors cover "
+            "its flight up to the failure, so its ratio compares unequal windows):\n"
         )
         lines.append(
             "| air | replicate | IMM max | UKF-2 max | UKF-3 max | IMM MSE | UKF-2 MSE | "
@@ -704,10 +705,15 @@ def matrix_markdown(summary: dict[str, object]) -> str:
         )
         lines.append("|---|---|---|---|---|---|---|---|---|")
         for f in data["flights"]:
-            flags = "" if f["imm_status"] in ("stable", None) else f" ({f['imm_status']})"
+
+            def flag(variant: str, flight: dict = f) -> str:
+                status = flight[f"{variant}_status"]
+                return "" if status in ("stable", None) else f" ({status})"
+
             lines.append(
-                f"| {f['air']} | {f['replicate']} | {_n(f['imm_att_max_deg'])}{flags} | "
-                f"{_n(f['ukf2_att_max_deg'])} | {_n(f['ukf3_att_max_deg'])} | "
+                f"| {f['air']} | {f['replicate']} | {_n(f['imm_att_max_deg'])}{flag('imm')} | "
+                f"{_n(f['ukf2_att_max_deg'])}{flag('ukf2')} | "
+                f"{_n(f['ukf3_att_max_deg'])}{flag('ukf3')} | "
                 f"{_n(f['imm_att_mse_deg2'])} | {_n(f['ukf2_att_mse_deg2'])} | "
                 f"{_n(f['ukf3_att_mse_deg2'])} | {_n(f['imm_over_ukf2_mse'], '.2f')} |"
             )
