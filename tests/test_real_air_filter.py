@@ -265,3 +265,16 @@ def test_alignment_of_a_healthy_imu_is_unchanged() -> None:
     assert dead_accelerometer(imu[:3]) is None
     nav = align(0.0, imu, np.array([0.0, 0.0, 0.0, 25.0, 0.0]))
     np.testing.assert_allclose(nav.euler_rad[:2], euler[:2], atol=1e-12)
+
+
+def test_body_to_ned_is_scipys_zyx_rotation() -> None:
+    """The written-out R_nb against scipy's Rotation (an independent implementation)."""
+    from scipy.spatial.transform import Rotation
+
+    from immukf_sitl.service.alignment import body_to_ned
+
+    rng = np.random.default_rng(4)
+    for _ in range(200):
+        euler = rng.uniform([-np.pi, -1.5, -np.pi], [np.pi, 1.5, np.pi])
+        expected = Rotation.from_euler("ZYX", euler[::-1]).as_matrix()
+        np.testing.assert_allclose(body_to_ned(euler), expected, atol=1e-15)
