@@ -418,6 +418,7 @@ def test_matrix_summary_on_a_hand_made_run_set() -> None:
     assert flight["imm_over_ukf2_mse"] == pytest.approx(1.5)
     att = summary["overall"]["attitude"]
     assert att["flights_within_ratio"] == 0 and att["flights_compared"] == 1
+    assert att["flights_ukf2_critical"] == 0
     assert summary["done_when"] == {
         "identified_within_1s": False,
         "no_false_declarations_in_1h": False,

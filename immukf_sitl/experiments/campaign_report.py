@@ -555,7 +555,13 @@ def _attitude(flights: Sequence[dict[str, object]]) -> dict[str, object]:
         mse, top = column(f"{variant}_att_mse_deg2"), column(f"{variant}_att_max_deg")
         out[f"{variant}_att_mse_deg2_mean"] = _number(sum(mse) / len(mse) if mse else math.nan)
         out[f"{variant}_att_max_deg_max"] = _number(max(top) if top else math.nan)
-    ratios = column("imm_over_ukf2_mse")
+    # a flight whose UKF-2 failed has no reference: counted apart, never as within the ratio
+    ratios = [
+        f["imm_over_ukf2_mse"]
+        for f in flights
+        if isinstance(f["imm_over_ukf2_mse"], float) and f["ukf2_status"] == "stable"
+    ]
+    out["flights_ukf2_critical"] = sum(f["ukf2_status"] == "critical" for f in flights)
     # the ratio of the means over the flights both flew (a flight only one has finished would
     # tilt it)
     paired = [f for f in flights if isinstance(f["imm_over_ukf2_mse"], float)]
@@ -618,7 +624,8 @@ def _done_when(group: dict) -> dict[str, object]:
         "no_false_declarations_in_1h": false["declarations"] == 0
         and (false["hours"] or 0.0) >= MATRIX_FAULT_FREE_HOURS,
         "attitude_within_1_2x_of_ukf2": att["flights_compared"] > 0
-        and att["flights_within_ratio"] == att["flights_compared"],
+        and att["flights_within_ratio"] == att["flights_compared"]
+        and att["flights_ukf2_critical"] == 0,
     }
 
 
@@ -696,7 +703,8 @@ def matrix_markdown(summary: dict[str, object]) -> str:
             "\n**Attitude estimate error on the fault-free flights** (deg, deg²; each variant "
             "flies its own closed loop on the same airframe, air and noise; the mean rows give "
             "the largest max, the mean MSE, and the IMM/UKF-2 ratio of the MSE summed over the "
-            "flights both flew, with the worst flight's ratio; a critical run's errors cover "
+            "flights both flew, with the worst ratio of a flight whose UKF-2 stayed stable; a "
+            "critical run's errors cover "
             "its flight up to the failure, so its ratio compares unequal windows):\n"
         )
         lines.append(
@@ -747,7 +755,9 @@ def matrix_markdown(summary: dict[str, object]) -> str:
         )
         lines.append(
             f"- IMM attitude MSE within 1.2× of UKF-2's on the same fault-free flight: "
-            f"{a['flights_within_ratio']}/{a['flights_compared']} flights (ratio of the means "
+            f"{a['flights_within_ratio']}/{a['flights_compared']} flights with a stable UKF-2, "
+            f"{a['flights_ukf2_critical']} flights without a reference (UKF-2 critical) "
+            f"(ratio of the means over all flights "
             f"{_n(a['imm_over_ukf2_mse_of_means'], '.2f')}, worst "
             f"{_n(a['imm_over_ukf2_mse_worst'], '.2f')}): "
             f"{mark(done['attitude_within_1_2x_of_ukf2'])}."
