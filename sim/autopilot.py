@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from immukf_sitl.models.earth import body_to_ned
 from immukf_sitl.scenario import FlightPlan
 from sim.truth import TrimResult, TruthState
 
@@ -46,20 +47,6 @@ __all__ = [
 def wrap_angle_rad(angle_rad: float) -> float:
     """Wrap an angle to [-pi, pi] (rad)."""
     return math.remainder(angle_rad, 2.0 * math.pi)
-
-
-def _rotation_nb(phi: float, theta: float, psi: float) -> np.ndarray:
-    """R_nb = Rz(psi) Ry(theta) Rx(phi): body FRD vectors into NED (docs/conventions.md)."""
-    cf, sf = math.cos(phi), math.sin(phi)
-    ct, st = math.cos(theta), math.sin(theta)
-    cp, sp = math.cos(psi), math.sin(psi)
-    return np.array(
-        [
-            [ct * cp, sf * st * cp - cf * sp, cf * st * cp + sf * sp],
-            [ct * sp, sf * st * sp + cf * cp, cf * st * sp - sf * cp],
-            [-st, sf * ct, cf * ct],
-        ]
-    )
 
 
 @dataclass(frozen=True)
@@ -147,7 +134,7 @@ class NavigationState:
         euler = np.asarray(euler_rad, dtype=float)
         velocity = np.asarray(velocity_ned_mps, dtype=float)
         air = velocity if wind_ned_mps is None else velocity - np.asarray(wind_ned_mps, float)
-        body = _rotation_nb(euler[0], euler[1], euler[2]).T @ air
+        body = body_to_ned(euler).T @ air
         airspeed = float(np.linalg.norm(body))
         beta = math.asin(max(-1.0, min(1.0, body[1] / airspeed))) if airspeed > 0.0 else 0.0
         return cls(
@@ -192,7 +179,7 @@ class NavigationState:
             time_s=float(time_s),
             position_ned_m=x[0:3].copy(),
             alt_m=float(origin_alt_m - x[2]),
-            velocity_ned_mps=_rotation_nb(x[6], x[7], x[8]) @ uvw,
+            velocity_ned_mps=body_to_ned(x[6:9]) @ uvw,
             euler_rad=x[6:9].copy(),
             rates_body_radps=x[9:12].copy(),
             airspeed_mps=airspeed,

@@ -20,9 +20,10 @@ from immukf_sitl.models.augmented import (
     AugmentedAeroModel,
     model_error_sigmas,
 )
+from immukf_sitl.models.earth import body_to_ned
 from immukf_sitl.models.params import load_aircraft_params
 from immukf_sitl.models.sensors import GpsSpec, ImuSpec, SensorSpec
-from immukf_sitl.service.alignment import align, body_to_ned, dead_accelerometer
+from immukf_sitl.service.alignment import align, dead_accelerometer
 from immukf_sitl.service.detection import DetectorConfig, FaultDetector
 from immukf_sitl.service.noise_model import milspec_scale_lengths_m, slow_state_noise
 from immukf_sitl.service.tuning import FilterTuning
@@ -274,7 +275,7 @@ def test_body_to_ned_is_scipys_zyx_rotation() -> None:
     """The written-out R_nb against scipy's Rotation (an independent implementation)."""
     from scipy.spatial.transform import Rotation
 
-    from immukf_sitl.service.alignment import body_to_ned
+    from immukf_sitl.models.earth import body_to_ned
 
     rng = np.random.default_rng(4)
     for _ in range(200):

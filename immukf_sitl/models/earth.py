@@ -16,6 +16,7 @@ import pymap3d
 from numpy.typing import ArrayLike
 
 __all__ = [
+    "body_to_ned",
     "WGS84",
     "NedOrigin",
     "geodetic_to_ned",
@@ -83,6 +84,26 @@ class NedOrigin:
     def to_geodetic(self, ned_m: ArrayLike) -> np.ndarray:
         """NED about this origin -> geodetic; see :func:`ned_to_geodetic`."""
         return ned_to_geodetic(ned_m, self)
+
+
+def body_to_ned(euler_rad: np.ndarray) -> np.ndarray:
+    """``R_nb = Rz(psi) Ry(theta) Rx(phi)`` for ZYX Euler angles (B&M eq. 3.14).
+
+    Written out: it runs on every published estimate, where scipy's ``Rotation`` cost ten
+    times as much (170-200 us against 17-25 us on the loaded CI machine); the tests hold the
+    two to 1e-15.
+    """
+    phi, theta, psi = (float(a) for a in euler_rad)
+    sph, cph = math.sin(phi), math.cos(phi)
+    sth, cth = math.sin(theta), math.cos(theta)
+    sps, cps = math.sin(psi), math.cos(psi)
+    return np.array(
+        [
+            [cth * cps, sph * sth * cps - cph * sps, cph * sth * cps + sph * sps],
+            [cth * sps, sph * sth * sps + cph * cps, cph * sth * sps - sph * cps],
+            [-sth, sph * cth, cph * cth],
+        ]
+    )
 
 
 def geodetic_to_ned(

@@ -5,7 +5,6 @@
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -36,26 +35,6 @@ class NavSolution:
     velocity_sigma_mps: np.ndarray
     euler_sigma_rad: np.ndarray
     rates_sigma_radps: np.ndarray
-
-
-def body_to_ned(euler_rad: np.ndarray) -> np.ndarray:
-    """``R_nb = Rz(psi) Ry(theta) Rx(phi)`` for ZYX Euler angles (B&M eq. 3.14).
-
-    Written out: it runs on every published estimate, where scipy's ``Rotation`` cost ten
-    times as much (170-200 us against 17-25 us on the loaded CI machine); the tests hold the
-    two to 1e-15.
-    """
-    phi, theta, psi = (float(a) for a in euler_rad)
-    sph, cph = math.sin(phi), math.cos(phi)
-    sth, cth = math.sin(theta), math.cos(theta)
-    sps, cps = math.sin(psi), math.cos(psi)
-    return np.array(
-        [
-            [cth * cps, sph * sth * cps - cph * sps, cph * sth * cps + sph * sps],
-            [cth * sps, sph * sth * sps + cph * cps, cph * sth * sps - sph * cps],
-            [-sth, sph * cth, cph * cth],
-        ]
-    )
 
 
 #: Specific force of unaccelerated flight differs from gravity by less than this fraction; an

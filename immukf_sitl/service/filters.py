@@ -50,11 +50,11 @@ from immukf_sitl.models.augmented import (
     WIND,
     AugmentedAeroModel,
 )
-from immukf_sitl.models.earth import NedOrigin
+from immukf_sitl.models.earth import NedOrigin, body_to_ned
 from immukf_sitl.models.ins import InsModel
 from immukf_sitl.models.params import AircraftParams
 from immukf_sitl.models.sensors import IMU_PERIOD_S, SensorSpec
-from immukf_sitl.service.alignment import NavSolution, body_to_ned
+from immukf_sitl.service.alignment import NavSolution
 from immukf_sitl.service.noise_model import SlowStateNoise, slow_state_noise
 from immukf_sitl.service.tuning import FilterTuning
 
