@@ -378,7 +378,7 @@ class UnscentedKalmanFilter:
                 nis, log_likelihood,
             )  # fmt: skip
         consider = proc.consider_idx
-        if consider:  # Schmidt-Kalman: zero gain rows; P_xc as optimal, P_cc and x_c kept
+        if consider:  # eqs. (22)-(23) with the consider rows of K zeroed (Schmidt): x_c, P_cc kept
             block = np.ix_(range(batch), consider, consider)
             new_mean[:, consider] = pred_mean[:, consider]
             new_cov[block] = pred_cov[block]
