@@ -55,7 +55,11 @@ from immukf_sitl.models.ins import InsModel
 from immukf_sitl.models.params import AircraftParams
 from immukf_sitl.models.sensors import IMU_PERIOD_S, SensorSpec
 from immukf_sitl.service.alignment import NavSolution
-from immukf_sitl.service.noise_model import SlowStateNoise, slow_state_noise
+from immukf_sitl.service.noise_model import (
+    SlowStateNoise,
+    gust_acceleration_cov,
+    slow_state_noise,
+)
 from immukf_sitl.service.tuning import FilterTuning
 
 Variant = Literal["ukf1", "ukf2", "ukf3", "imm"]
@@ -68,19 +72,23 @@ def aero_process_model(
     noise: SlowStateNoise | None,
     sensors: SensorSpec,
     tuning: FilterTuning,
+    gust_cov: np.ndarray | None = None,
 ) -> ProcessModel:
     """``x(k+1) = f[x(k), u(k), v(k)]`` (eq. 1): RK4 of the 6-DOF model with its slow states.
 
     ``v`` is additive on the body and angular accelerations, with standard deviations
     ``tuning.process_noise_factor`` times the accelerometer (m/s^2) and gyro (rad/s, read as
-    rad/s^2) noise: the fast residue the slow states do not carry. The slow states' driving
+    rad/s^2) noise, plus ``gust_cov`` (6x6, the rotational gusts' effect,
+    :func:`~immukf_sitl.service.noise_model.gust_acceleration_cov`): the fast residue the slow
+    states do not carry, held over a step (the gusts' correlation times, 0.1-0.3 s, are ten
+    steps and more). The slow states' driving
     noise (``noise``) is linear and enters ``P(k+1|k)`` directly (``state_noise_cov``). The
     filter's control argument is the pair ``[u(k), u(k+1)]`` (shape (2, 4)): ``f`` flies the
     step on ``u(k)``, the output model predicts the IMU at ``k+1`` with ``u(k+1)`` (the
     specific force depends on the surfaces and throttle acting at the sample).
     """
     sigma = tuning.process_noise_factor * sensors.imu.sigmas
-    q = np.diag(sigma**2)
+    q = np.diag(sigma**2) if gust_cov is None else np.diag(sigma**2) + gust_cov
     dt = model.dt_s
     nx = model.nx
     slow = np.zeros((nx, nx))  # referred to the step's end
@@ -443,9 +451,10 @@ def build_aero_estimator(
     if tuning.slow_states:
         noise: SlowStateNoise | None = slow_state_noise(model.params, sensors, tuning)
         flown: AeroModel | AugmentedAeroModel = AugmentedAeroModel(model, noise.decay_per_s)
+        gust_cov: np.ndarray | None = gust_acceleration_cov(model, tuning)
     else:
-        noise, flown = None, model
-    process = aero_process_model(flown, noise, sensors, tuning)
+        noise, flown, gust_cov = None, model, None
+    process = aero_process_model(flown, noise, sensors, tuning, gust_cov)
     points = (
         JulierSigmaPoints(kappa)
         if tuning.sigma_point_alpha is None

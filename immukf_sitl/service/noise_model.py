@@ -20,6 +20,13 @@ number:
   specific force (a Gauss-Markov process at the error's full size) would also follow a sensor
   dying slowly into view: the healthy filter would absorb the fault.
 - **moment correction**: the same, for the angular acceleration.
+- **rotational gusts** (not a slow state: the white process noise of the body and angular
+  accelerations): the turbulence's gust gradients turn the air about the aircraft (MIL-F-8785C /
+  MIL-HDBK-1797 ``p_g``, ``q_g``, ``r_g``), which the model's rate derivatives (``C_lp``,
+  ``C_mq``, ``C_nr``, ...) make into angular accelerations of about 1 rad/s^2 in moderate
+  turbulence, 40 times the old white noise; the wind states cannot carry them (their
+  correlation times are 0.1-0.3 s). :func:`rotational_gust_sigmas` gives the gust rates at the
+  design air, :func:`gust_acceleration_cov` what they do to the model.
 - **GPS error**: the receiver's own Gauss-Markov model (B&M eq. 7.17): rate ``k_GPS``, driving
   sigmas per fix; stationary sigma ``sigma / sqrt(1 - exp(-2 k_GPS T_s))`` (4.9 m with the
   defaults). The first fix is where the filter starts, so the state starts at that sigma.
@@ -31,7 +38,9 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.integrate
 
+from immukf_sitl.models.aero import AeroModel
 from immukf_sitl.models.augmented import (
     FORCE,
     GPS_ERROR,
@@ -46,7 +55,13 @@ from immukf_sitl.models.sensors import SensorSpec
 from immukf_sitl.models.wind import TURBULENCE_LEVELS, milspec_low_altitude_sigmas
 from immukf_sitl.service.tuning import FilterTuning
 
-__all__ = ["SlowStateNoise", "milspec_scale_lengths_m", "slow_state_noise"]
+__all__ = [
+    "SlowStateNoise",
+    "gust_acceleration_cov",
+    "milspec_scale_lengths_m",
+    "rotational_gust_sigmas",
+    "slow_state_noise",
+]
 
 _FT_M = 0.3048
 
@@ -139,3 +154,67 @@ def slow_state_noise(
         stationary[errors] = driving / math.sqrt(gps.period_s)
     initial[errors] = stationary[errors] if gps.k_gps_per_s > 0.0 else driving
     return SlowStateNoise(initial, decay, stationary)
+
+
+def rotational_gust_sigmas(tuning: FilterTuning, span_m: float) -> np.ndarray:
+    """Standard deviations of the rotational gusts ``(p_g, q_g, r_g)`` (rad/s) at the design air.
+
+    MIL-F-8785C / MIL-HDBK-1797 (Dryden) as JSBSim's turbulence implements them (Yeager,
+    NASA CR-1998-206937): ``sigma_p = 1.9 sigma_w / sqrt(L_w b)`` (Yeager eq. 8); ``q_g`` is the
+    vertical gust's gradient along the span, ``(s / V) / (1 + 4 b s / (pi V))`` applied to
+    ``w_g``, and ``r_g`` the lateral one, ``(s / V) / (1 + 3 b s / (pi V))`` applied to ``v_g``
+    (eqs. 13, 16); their variances are those filters' outputs integrated over the Dryden
+    spectra of ``w_g`` and ``v_g``.
+    """
+    level = TURBULENCE_LEVELS[tuning.design_turbulence]
+    sigma_u, sigma_v, sigma_w = milspec_low_altitude_sigmas(level.w20_mps, tuning.design_height_m)
+    l_u, l_v, l_w = milspec_scale_lengths_m(tuning.design_height_m)
+    speed = tuning.design_airspeed_mps
+
+    def dryden_lateral(omega: float, sigma: float, scale: float) -> float:
+        # one-sided Dryden PSD of v_g or w_g, (m/s)^2 / (rad/s): integrates to sigma^2
+        x = scale * omega / speed
+        return sigma**2 * scale / (math.pi * speed) * (1.0 + 3.0 * x * x) / (1.0 + x * x) ** 2
+
+    def gradient_variance(sigma: float, scale: float, lag_span: float) -> float:
+        tau = lag_span * span_m / (math.pi * speed)
+
+        def psd(omega: float) -> float:
+            return (omega / speed) ** 2 / (1.0 + (tau * omega) ** 2) * dryden_lateral(
+                omega, sigma, scale
+            )
+
+        return scipy.integrate.quad(psd, 0.0, np.inf, limit=200)[0]
+
+    sigma_p = 1.9 * sigma_w / math.sqrt(l_w * span_m)
+    sigma_q = math.sqrt(gradient_variance(sigma_w, l_w, 4.0))
+    sigma_r = math.sqrt(gradient_variance(sigma_v, l_v, 3.0))
+    del sigma_u
+    return np.array([sigma_p, sigma_q, sigma_r])
+
+
+def gust_acceleration_cov(model: AeroModel, tuning: FilterTuning) -> np.ndarray:
+    """Covariance (6x6) of the specific force and angular acceleration the rotational gusts make.
+
+    The gust rates enter the aerodynamics as air turning about the aircraft (the forces and
+    moments see ``omega - omega_g``); the model's own derivatives of the specific force and of
+    the angular acceleration with respect to the body rates, at straight-and-level trim at the
+    design airspeed, map :func:`rotational_gust_sigmas` into ``J diag(sigma_g^2) J'`` (rows:
+    ``u_dot, v_dot, w_dot, p_dot, q_dot, r_dot``). Zero in still air (``design_turbulence``
+    ``none``).
+    """
+    sigma_g = rotational_gust_sigmas(tuning, model.params.geometry.b_m)
+    x_trim, u_trim = model.trim(tuning.design_airspeed_mps)
+    inertia = model.params.mass.inertia_kgm2
+    mass = model.params.mass.mass_kg
+    step = 1e-3  # rad/s: the aerodynamics are linear in the rates at this size
+    jacobian = np.zeros((6, 3))
+    for axis in range(3):
+        states = np.stack([x_trim, x_trim], axis=1)
+        states[9 + axis, 0] += step
+        states[9 + axis, 1] -= step
+        fm = model.forces_moments(0.0, states, u_trim)
+        change = (fm[:, 0] - fm[:, 1]) / (2.0 * step)
+        jacobian[:3, axis] = change[:3] / mass
+        jacobian[3:, axis] = np.linalg.solve(inertia, change[3:])
+    return jacobian @ np.diag(sigma_g**2) @ jacobian.T
