@@ -167,8 +167,8 @@ def rotational_gust_sigmas(tuning: FilterTuning, span_m: float) -> np.ndarray:
     spectra of ``w_g`` and ``v_g``.
     """
     level = TURBULENCE_LEVELS[tuning.design_turbulence]
-    sigma_u, sigma_v, sigma_w = milspec_low_altitude_sigmas(level.w20_mps, tuning.design_height_m)
-    l_u, l_v, l_w = milspec_scale_lengths_m(tuning.design_height_m)
+    _, sigma_v, sigma_w = milspec_low_altitude_sigmas(level.w20_mps, tuning.design_height_m)
+    _, l_v, l_w = milspec_scale_lengths_m(tuning.design_height_m)
     speed = tuning.design_airspeed_mps
 
     def dryden_lateral(omega: float, sigma: float, scale: float) -> float:
@@ -180,8 +180,10 @@ def rotational_gust_sigmas(tuning: FilterTuning, span_m: float) -> np.ndarray:
         tau = lag_span * span_m / (math.pi * speed)
 
         def psd(omega: float) -> float:
-            return (omega / speed) ** 2 / (1.0 + (tau * omega) ** 2) * dryden_lateral(
-                omega, sigma, scale
+            return (
+                (omega / speed) ** 2
+                / (1.0 + (tau * omega) ** 2)
+                * dryden_lateral(omega, sigma, scale)
             )
 
         return scipy.integrate.quad(psd, 0.0, np.inf, limit=200)[0]
@@ -189,7 +191,6 @@ def rotational_gust_sigmas(tuning: FilterTuning, span_m: float) -> np.ndarray:
     sigma_p = 1.9 * sigma_w / math.sqrt(l_w * span_m)
     sigma_q = math.sqrt(gradient_variance(sigma_w, l_w, 4.0))
     sigma_r = math.sqrt(gradient_variance(sigma_v, l_v, 3.0))
-    del sigma_u
     return np.array([sigma_p, sigma_q, sigma_r])
 
 
