@@ -98,7 +98,12 @@ class InProcessRun:
 
 
 def _navigation(out: EstimateOutput, offset_m: np.ndarray, origin_alt_m: float) -> NavigationState:
-    """The pipeline's estimate as the autopilot's navigation state, in the flight's frame."""
+    """The pipeline's estimate as the autopilot's navigation state, in the flight's frame.
+
+    The airspeed the autopilot holds is the estimate's: ground velocity less the estimated wind
+    when the variant estimates it (the real-air model), else the ground speed (a variant that
+    assumes still air flies as an autopilot without an airspeed sensor or wind estimate does).
+    """
     nav = out.nav
     position = nav.position_ned_m + offset_m
     return NavigationState.from_navigation(
@@ -108,6 +113,7 @@ def _navigation(out: EstimateOutput, offset_m: np.ndarray, origin_alt_m: float) 
         nav.velocity_ned_mps,
         nav.euler_rad,
         nav.rates_radps,
+        nav.wind_ned_mps,
     )
 
 

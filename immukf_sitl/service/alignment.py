@@ -24,6 +24,9 @@ class NavSolution:
         Body rates p, q, r.
     position_sigma_m, velocity_sigma_mps, euler_sigma_rad, rates_sigma_radps : ndarray
         One-sigma uncertainties of the same (diagonal of the covariance).
+    wind_ned_mps : ndarray, shape (3,), or None
+        The estimated wind (NED, where it blows to) of a variant that estimates it (the
+        real-air model); None for one that assumes still air.
     """
 
     t_s: float
@@ -35,6 +38,7 @@ class NavSolution:
     velocity_sigma_mps: np.ndarray
     euler_sigma_rad: np.ndarray
     rates_sigma_radps: np.ndarray
+    wind_ned_mps: np.ndarray | None = None
 
 
 #: Specific force of unaccelerated flight differs from gravity by less than this fraction; an

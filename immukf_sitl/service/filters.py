@@ -386,6 +386,7 @@ class AircraftEstimator(_Bank):
             np.sqrt(np.clip(np.diagonal(vel_cov), 0.0, None)),
             _sigma(cov, slice(6, 9)),
             _sigma(cov, slice(9, 12)),
+            None if self.noise is None else x[N_RIGID + WIND.start : N_RIGID + WIND.stop].copy(),
         )
 
 
