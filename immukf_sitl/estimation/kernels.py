@@ -289,14 +289,18 @@ def _centre_columns(cols, mean, angle):
 
 @numba.njit(cache=True, error_model="numpy")
 def _weighted_outer(rt, weights, acc):
-    """``acc = sum_s (r_s w_s) r_s'`` for rows ``rt[s]`` (full square; callers read i >= j)."""
+    """``acc = sum_s (r_s w_s) r_s'`` for rows ``rt[s]``: the lower triangle ``i >= j`` only.
+
+    The sum is symmetric, so callers read ``i >= j`` and mirror it (half the work of the
+    square); the upper triangle of ``acc`` stays zero.
+    """
     n_sigma, n = rt.shape
     _fill(acc, 0.0)
     for s in range(n_sigma):
         w = weights[s]
         for i in range(n):
             a = rt[s, i] * w
-            for j in range(n):
+            for j in range(i + 1):
                 acc[i, j] += a * rt[s, j]
 
 
@@ -318,6 +322,11 @@ def predict_moments(
     ``x^ = sum_s Wm_s X_s`` (eq. 16, circular for angles), ``r_s = X_s - x^`` (eq. 17, angles
     wrapped), ``P = sum_s Wc_s r_s r_s' + add_cov`` (eq. 18, symmetric by construction).
 
+    The sums run over the distinct columns ``d`` of ``moved`` only, each weighted by the sum of
+    the weights of the columns that repeat it (``sum_{s: src[s] = d} W_s``): the same sums
+    regrouped, so equal up to rounding, without the ``2 nw`` copies of the centre the augmented
+    form carries (a third of its columns at the real-air model's sizes).
+
     Parameters
     ----------
     moved : ndarray, shape (nx, B, nd)
@@ -337,22 +346,27 @@ def predict_moments(
     """
     nx, batch, nd = moved.shape
     n_sigma = src.size
-    rt = np.empty((n_sigma, nx))
+    wm_d = np.zeros(nd)  # the weights of the distinct columns
+    wc_d = np.zeros(nd)
+    for s in range(n_sigma):
+        wm_d[src[s]] += wm[s]
+        wc_d[src[s]] += wc[s]
+    distinct = np.arange(nd)
+    rd = np.empty((nd, nx))
     acc = np.empty((nx, nx))
     m = np.empty(nx)
     sines = np.empty(nd)
     cosines = np.empty(nd)
     for b in range(batch):
-        _gather_moments(moved, b, src, wm, angle, rt, m, sines, cosines)
+        _gather_moments(moved, b, distinct, wm_d, angle, rd, m, sines, cosines)  # eq. (16)
+        _centre_columns(rd, m, angle)  # eq. (17)
         for i in range(nx):
             mean[b, i] = m[i]
             for s in range(n_sigma):
-                x_points[i, b, s] = rt[s, i]
-        _centre_columns(rt, m, angle)
-        for i in range(nx):
-            for s in range(n_sigma):
-                res[b, i, s] = rt[s, i]
-        _weighted_outer(rt, wc, acc)
+                d = src[s]
+                x_points[i, b, s] = moved[i, b, d]
+                res[b, i, s] = rd[d, i]
+        _weighted_outer(rd, wc_d, acc)  # eq. (18)
         for i in range(nx):
             for j in range(i + 1):
                 value = acc[i, j] + add_cov[i, j]
