@@ -613,6 +613,33 @@ def gain_update(
     return n_nonfinite
 
 
+@numba.njit(cache=True, error_model="numpy")
+def keep_consider(
+    consider: np.ndarray, pred_mean: np.ndarray, pred_cov: np.ndarray, new_mean: np.ndarray,
+    new_cov: np.ndarray,
+) -> None:  # fmt: skip
+    """Eqs. (22)-(23) with the consider rows of the gain zeroed (Schmidt): ``x_c``, ``P_cc`` kept.
+
+    Parameters
+    ----------
+    consider : ndarray of int64, shape (nc,)
+        Indices of the consider states.
+    pred_mean, pred_cov : ndarray, shapes (B, nx), (B, nx, nx)
+        ``x(k+1|k)``, ``P(k+1|k)``.
+    new_mean, new_cov : ndarray, shapes (B, nx), (B, nx, nx)
+        ``x(k+1|k+1)``, ``P(k+1|k+1)`` of the full update; their consider entries are reset to
+        the prediction's in place.
+    """
+    n_c = consider.size
+    for b in range(new_mean.shape[0]):
+        for a in range(n_c):
+            i = consider[a]
+            new_mean[b, i] = pred_mean[b, i]
+            for c in range(n_c):
+                j = consider[c]
+                new_cov[b, i, j] = pred_cov[b, i, j]
+
+
 # -- the IMM (eqs. 6-8, 26-28) -----------------------------------------------------------------
 
 
