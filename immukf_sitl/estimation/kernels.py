@@ -296,12 +296,22 @@ def _weighted_outer(rt, weights, acc):
     """
     n_sigma, n = rt.shape
     _fill(acc, 0.0)
-    for s in range(n_sigma):
-        w = weights[s]
+    s = 0
+    while s + 4 <= n_sigma:  # four samples per pass: a quarter of the loads and stores of acc
+        w0, w1, w2, w3 = weights[s], weights[s + 1], weights[s + 2], weights[s + 3]
         for i in range(n):
-            a = rt[s, i] * w
+            a0, a1, a2, a3 = rt[s, i] * w0, rt[s + 1, i] * w1, rt[s + 2, i] * w2, rt[s + 3, i] * w3
             for j in range(i + 1):
-                acc[i, j] += a * rt[s, j]
+                acc[i, j] += (a0 * rt[s, j] + a1 * rt[s + 1, j]) + (
+                    a2 * rt[s + 2, j] + a3 * rt[s + 3, j]
+                )
+        s += 4
+    for t in range(s, n_sigma):
+        w = weights[t]
+        for i in range(n):
+            a = rt[t, i] * w
+            for j in range(i + 1):
+                acc[i, j] += a * rt[t, j]
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -428,11 +438,20 @@ def _output_moments(
     for c in range(nz):
         for a in range(nx):
             cross[b, c, a] = 0.0
-    for s in range(n_sigma):
+    s = 0
+    while s + 4 <= n_sigma:  # four samples per pass, as in _weighted_outer
         for c in range(nz):
-            zc = zr[s, c]
+            z0, z1, z2, z3 = zr[s, c], zr[s + 1, c], zr[s + 2, c], zr[s + 3, c]
             for a in range(nx):
-                cross[b, c, a] += xw[s, a] * zc
+                cross[b, c, a] += (xw[s, a] * z0 + xw[s + 1, a] * z1) + (
+                    xw[s + 2, a] * z2 + xw[s + 3, a] * z3
+                )
+        s += 4
+    for t in range(s, n_sigma):
+        for c in range(nz):
+            zc = zr[t, c]
+            for a in range(nx):
+                cross[b, c, a] += xw[t, a] * zc
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -479,11 +498,11 @@ def _gain_update(
             gain_innov += white[i, a] * white_innov[i]
         new_mean[b, a] = pred_mean[b, a] + gain_innov
     _wrap_columns(new_mean[b : b + 1], x_angle)
-    _fill(outer, 0.0)  # eq. (23): P - W'W, symmetric by construction
+    _fill(outer, 0.0)  # eq. (23): P - W'W, symmetric by construction: its lower triangle
     for i in range(nz):
         for a in range(nx):
             wa = white[i, a]
-            for c in range(nx):
+            for c in range(a + 1):
                 outer[a, c] += wa * white[i, c]
     finite = True
     for a in range(nx):
