@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from immukf_sitl.estimation import FaultMode, ObservabilityGate, kernels, single_fault_modes
+from immukf_sitl.estimation.ukf import _process_column_source
 from immukf_sitl.models import aero_kernels
 from immukf_sitl.models.aero import AeroModel
 from immukf_sitl.models.airframe import AirframeUncertainty
@@ -320,7 +321,7 @@ def test_perturbed_airframe_in_wind_flies_without_a_declaration() -> None:
 
 def test_the_dynamics_do_not_read_the_gps_errors(trimmed) -> None:
     """What lets a sigma point that moves only the GPS errors fly as its centre: the rigid body's
-    derivative and RK4 step ignore ``e`` from ``N_DYNAMIC_EXTRA`` on (bit for bit)."""
+    derivative, RK4 step and IMU ignore ``e`` from ``N_DYNAMIC_EXTRA`` on (bit for bit)."""
     aero, x0, u0 = trimmed
     rng = np.random.default_rng(21)
     n = 9
@@ -331,15 +332,18 @@ def test_the_dynamics_do_not_read_the_gps_errors(trimmed) -> None:
     moved_e = e.copy()
     moved_e[aero_kernels.N_DYNAMIC_EXTRA :] = 50.0 * rng.standard_normal((3, n))
     k = aero._k
-    steps, rates = [], []
+    steps, rates, imus = [], [], []
     for extra in (e, moved_e):
-        out, xd = np.empty((12, n)), np.empty((12, n))
+        out, xd, z = np.empty((12, n)), np.empty((12, n)), np.empty((6, n))
         aero_kernels.step_batch(x, u, v, extra, k, aero.dt_s, 1, out)
         aero_kernels.derivatives_batch(x, u, v, extra, k, xd)
+        aero_kernels.imu_batch(x, u, extra, k, 1, z)
         steps.append(out)
         rates.append(xd)
+        imus.append(z)
     np.testing.assert_array_equal(steps[0], steps[1])
     np.testing.assert_array_equal(rates[0], rates[1])
+    np.testing.assert_array_equal(imus[0], imus[1])
 
 
 def test_sigma_points_moving_only_the_gps_errors_fly_as_their_centre(trimmed) -> None:
@@ -370,6 +374,22 @@ def test_sigma_points_moving_only_the_gps_errors_fly_as_their_centre(trimmed) ->
     np.testing.assert_array_equal(grouped, every)
     # and the model's step, which passes the sigma axis as the period, is that result
     np.testing.assert_array_equal(model.step(0.0, x, u0, v)[:N_RIGID].reshape(12, -1), every)
+    # the output model: of the full set of points (eq. 15), those that repeat the centre's x
+    # (here the 2 nw measurement-noise and the 2 nv process-noise points: these points are not
+    # propagated) or move only the GPS errors take the centre's reading
+    nw = 6
+    source = _process_column_source(N_AUGMENTED + nv, N_AUGMENTED + nv + nw)
+    full = np.ascontiguousarray(x[:, :, source])
+    n_sigma = source.size
+    z_grouped, z_every = np.empty((6, modes * n_sigma)), np.empty((6, modes * n_sigma))
+    rigid = np.ascontiguousarray(full[:N_RIGID].reshape(12, -1))
+    slow = np.ascontiguousarray(full[N_RIGID:].reshape(15, -1))
+    u_full = np.ascontiguousarray(np.repeat(u0[:, None], modes * n_sigma, axis=1))
+    imu_args = (rigid, u_full, slow, aero._k)
+    assert aero_kernels.imu_batch(*imu_args, n_sigma, z_grouped) == modes * 2 * (nw + nv + 3)
+    assert aero_kernels.imu_batch(*imu_args, 1, z_every) == 0
+    np.testing.assert_array_equal(z_grouped, z_every)
+    np.testing.assert_array_equal(model.imu(0.0, full, u0).reshape(6, -1), z_every)
 
 
 def test_a_zero_of_the_other_sign_is_a_different_input(trimmed) -> None:
@@ -381,6 +401,9 @@ def test_a_zero_of_the_other_sign_is_a_different_input(trimmed) -> None:
     u = np.ascontiguousarray(np.repeat(u0[:, None], 2, axis=1))
     out = np.empty((12, 2))
     args = (x, u, np.zeros((6, 2)), np.zeros((15, 2)), aero._k, aero.dt_s)
+    z = np.empty((6, 2))
     assert aero_kernels.step_batch(*args, 2, out) == 0
+    assert aero_kernels.imu_batch(x, u, args[3], aero._k, 2, z) == 0
     x[4, 1] = 0.0
     assert aero_kernels.step_batch(*args, 2, out) == 1
+    assert aero_kernels.imu_batch(x, u, args[3], aero._k, 2, z) == 1

@@ -438,7 +438,8 @@ class AeroModel:
             n = x[0].size
             x2, u2 = self._flat_xu(x, u, n)
             e2 = _zero_extra(n) if e is None else _writeable_contiguous(e.reshape(-1, n))
-            kernels.imu_batch(x2, u2, e2, self._k, out.reshape(6, n))
+            period = x.shape[-1] if x.ndim > 1 else 1  # as in step_with
+            kernels.imu_batch(x2, u2, e2, self._k, period, out.reshape(6, n))
         else:
             e = np.zeros(kernels.N_EXTRA) if e is None else e
             scratch = np.empty((6, *x.shape[1:])), np.empty(x.shape)

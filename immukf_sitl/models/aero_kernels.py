@@ -136,8 +136,9 @@ FORCE_X = 6
 MOMENT_P = 9
 GPS_ERROR_N = 12
 N_EXTRA = 15
-#: The entries of ``e`` that :func:`derivatives` reads: all before the GPS errors, which only
-#: :func:`gps` reads (they are last, so a sigma point that moves only them flies as its centre).
+#: The entries of ``e`` that :func:`derivatives` and :func:`imu` read: all before the GPS errors,
+#: which only :func:`gps` reads (they are last, so a sigma point that moves only them flies, and
+#: reads the IMU, as its centre).
 N_DYNAMIC_EXTRA = GPS_ERROR_N
 
 
@@ -704,18 +705,41 @@ def forces_moments_batch(x: np.ndarray, u: np.ndarray, k: np.ndarray, out: np.nd
 
 
 @numba.njit(cache=True, error_model="numpy")
-def imu_batch(x: np.ndarray, u: np.ndarray, e: np.ndarray, k: np.ndarray, out: np.ndarray) -> None:
-    """:func:`imu` of every column of x (12, N), u (4, N), e (15, N) into out (6, N)."""
+def imu_batch(
+    x: np.ndarray, u: np.ndarray, e: np.ndarray, k: np.ndarray, period: int, out: np.ndarray
+) -> int:
+    """:func:`imu` of every column of x (12, N), u (4, N), e (15, N) into out (6, N).
+
+    As in :func:`step_batch`, a column whose inputs (``x``, ``u`` and the ``N_DYNAMIC_EXTRA``
+    entries of ``e``) are bitwise those of the first column of its group of ``period`` takes
+    that column's reading: in the augmented filter, the points that move only the measurement
+    noise or the GPS errors. Returns the number of such columns.
+    """
     xs, us, es, fm, zs, xa = (
         np.empty(12), np.empty(4), np.empty(N_EXTRA), np.empty(6), np.empty(6), np.empty(12)
     )  # fmt: skip
+    n_reused = 0
     for j in range(x.shape[1]):
+        first = j - j % period
+        same = first != j
+        for i in range(12):
+            same = same and _bitwise_equal(x[i, j], x[i, first])
+        for i in range(N_DYNAMIC_EXTRA):
+            same = same and _bitwise_equal(e[i, j], e[i, first])
+        for i in range(4):
+            same = same and _bitwise_equal(u[i, j], u[i, first])
+        if same:
+            for i in range(6):
+                out[i, j] = out[i, first]
+            n_reused += 1
+            continue
         _column(x, j, xs)
         _column(u, j, us)
         _column(e, j, es)
         imu(xs, us, es, k, fm, xa, zs)
         for i in range(6):
             out[i, j] = zs[i]
+    return n_reused
 
 
 # ---------------------------------------------------------------------------------------------
