@@ -31,7 +31,7 @@ from immukf_sitl.estimation import (
 )
 from immukf_sitl.estimation import kernels as compiled_kernels
 from immukf_sitl.estimation.angles import wrap_angle
-from immukf_sitl.estimation.ukf import load_kernels
+from immukf_sitl.estimation.ukf import _process_column_source, load_kernels
 
 #: Compiled against interpreted: the same operations in the same order, so rounding only.
 SAME = 1e-13
@@ -231,6 +231,35 @@ def test_predict_moments_are_eqs_16_to_18(kern, duplicated):
     np.testing.assert_allclose(res, ref_res, rtol=RTOL, atol=1e-15)
     np.testing.assert_allclose(cov, ref_cov + added, rtol=RTOL, atol=1e-15)
     assert np.array_equal(cov, cov.transpose(0, 2, 1))
+
+
+def test_predict_moments_over_distinct_columns_equal_the_sums_over_all(kern):
+    """The augmented form's repeated centre columns summed once, weights pooled: eqs. (16)-(18)
+    over every column (identity source, each copy its own column) give the same moments."""
+    rng = np.random.default_rng(8)
+    nx, nv, nw, batch = 7, 3, 4, 2
+    n_aug = nx + nv + nw
+    source = _process_column_source(nx + nv, n_aug)
+    weights = ScaledSigmaPoints(alpha=0.9, beta=2.0, kappa=0.5).weights(n_aug)  # Wc0 != Wm0
+    moved = rng.standard_normal((nx, batch, source.max() + 1))
+    moved[2] = wrap_angle(np.pi - 0.05 + 0.1 * rng.random((batch, source.max() + 1)))
+    added = np.diag(np.linspace(0.1, 0.7, nx))
+    angles = angle_mask(nx, (2,))
+
+    def moments(points, src):
+        outs = (np.empty((nx, batch, src.size)), np.empty((batch, nx)),
+                np.empty((batch, nx, nx)), np.empty((batch, nx, src.size)))  # fmt: skip
+        kern.predict_moments(
+            points, src, weights.mean_weights, weights.cov_weights, angles, added, *outs
+        )
+        return outs
+
+    pooled = moments(moved, source)
+    full = moments(np.ascontiguousarray(moved[:, :, source]), np.arange(source.size))
+    assert np.array_equal(pooled[0], full[0])
+    for got, expected in zip(pooled[1:], full[1:], strict=True):
+        np.testing.assert_allclose(got, expected, rtol=RTOL, atol=1e-14)
+    assert np.array_equal(pooled[2], pooled[2].transpose(0, 2, 1))
 
 
 def _update_case(rng, batch=5, nx=6, nz=4):

@@ -8,7 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from immukf_sitl.estimation import FaultMode, ObservabilityGate, single_fault_modes
+from immukf_sitl.estimation import FaultMode, ObservabilityGate, kernels, single_fault_modes
+from immukf_sitl.estimation.ukf import _process_column_source
+from immukf_sitl.models import aero_kernels
 from immukf_sitl.models.aero import AeroModel
 from immukf_sitl.models.airframe import AirframeUncertainty
 from immukf_sitl.models.augmented import (
@@ -315,3 +317,93 @@ def test_perturbed_airframe_in_wind_flies_without_a_declaration() -> None:
         nees.append(float(np.sum((error / out.nav.position_sigma_m) ** 2)))
     assert len(nees) > 2000
     assert max(nees) < 16.3
+
+
+def test_the_dynamics_do_not_read_the_gps_errors(trimmed) -> None:
+    """What lets a sigma point that moves only the GPS errors fly as its centre: the rigid body's
+    derivative, RK4 step and IMU ignore ``e`` from ``N_DYNAMIC_EXTRA`` on (bit for bit)."""
+    aero, x0, u0 = trimmed
+    rng = np.random.default_rng(21)
+    n = 9
+    x = np.ascontiguousarray(x0[:, None] + 0.1 * rng.standard_normal((12, n)))
+    u = np.ascontiguousarray(np.repeat(u0[:, None], n, axis=1))
+    v = rng.standard_normal((6, n))
+    e = 0.1 * rng.standard_normal((aero_kernels.N_EXTRA, n))
+    moved_e = e.copy()
+    moved_e[aero_kernels.N_DYNAMIC_EXTRA :] = 50.0 * rng.standard_normal((3, n))
+    k = aero._k
+    steps, rates, imus = [], [], []
+    for extra in (e, moved_e):
+        out, xd, z = np.empty((12, n)), np.empty((12, n)), np.empty((6, n))
+        aero_kernels.step_batch(x, u, v, extra, k, aero.dt_s, 1, out)
+        aero_kernels.derivatives_batch(x, u, v, extra, k, xd)
+        aero_kernels.imu_batch(x, u, extra, k, 1, z)
+        steps.append(out)
+        rates.append(xd)
+        imus.append(z)
+    np.testing.assert_array_equal(steps[0], steps[1])
+    np.testing.assert_array_equal(rates[0], rates[1])
+    np.testing.assert_array_equal(imus[0], imus[1])
+
+
+def test_sigma_points_moving_only_the_gps_errors_fly_as_their_centre(trimmed) -> None:
+    """The real-air filter's RK4 batch: the 2 x 3 points of each mode that move only the GPS
+    errors reuse the centre's integration, and the step equals integrating every column."""
+    aero, x0, u0 = trimmed
+    model = _augmented(aero, np.full(15, 0.01))
+    rng = np.random.default_rng(22)
+    modes, nv = 7, 6
+    a = rng.standard_normal((modes, N_AUGMENTED, N_AUGMENTED))
+    cov = 1e-3 * (a @ a.transpose(0, 2, 1)) + 1e-4 * np.eye(N_AUGMENTED)
+    mean = np.concatenate([x0, 0.1 * rng.standard_normal(15)]) + 0.01 * rng.standard_normal(
+        (modes, N_AUGMENTED)
+    )
+    n_distinct = 1 + 2 * (N_AUGMENTED + nv)
+    x = np.empty((N_AUGMENTED, modes, n_distinct))
+    v = np.empty((nv, modes, n_distinct))
+    kernels.augmented_process_points(
+        mean, np.linalg.cholesky(cov), 0.3 * np.eye(nv), 6.0, x, v
+    )  # eqs. (9)-(11)
+    flat = [np.ascontiguousarray(a.reshape(a.shape[0], -1)) for a in (x[:N_RIGID], v)]
+    e = np.ascontiguousarray(x[N_RIGID:].reshape(15, -1))
+    u = np.ascontiguousarray(np.repeat(u0[:, None], modes * n_distinct, axis=1))
+    grouped, every = np.empty((12, modes * n_distinct)), np.empty((12, modes * n_distinct))
+    args = (flat[0], u, flat[1], e, aero._k, aero.dt_s)
+    assert aero_kernels.step_batch(*args, n_distinct, grouped) == modes * 2 * 3
+    assert aero_kernels.step_batch(*args, 1, every) == 0
+    np.testing.assert_array_equal(grouped, every)
+    # and the model's step, which passes the sigma axis as the period, is that result
+    np.testing.assert_array_equal(model.step(0.0, x, u0, v)[:N_RIGID].reshape(12, -1), every)
+    # the output model: of the full set of points (eq. 15), those that repeat the centre's x
+    # (here the 2 nw measurement-noise and the 2 nv process-noise points: these points are not
+    # propagated) or move only the GPS errors take the centre's reading
+    nw = 6
+    source = _process_column_source(N_AUGMENTED + nv, N_AUGMENTED + nv + nw)
+    full = np.ascontiguousarray(x[:, :, source])
+    n_sigma = source.size
+    z_grouped, z_every = np.empty((6, modes * n_sigma)), np.empty((6, modes * n_sigma))
+    rigid = np.ascontiguousarray(full[:N_RIGID].reshape(12, -1))
+    slow = np.ascontiguousarray(full[N_RIGID:].reshape(15, -1))
+    u_full = np.ascontiguousarray(np.repeat(u0[:, None], modes * n_sigma, axis=1))
+    imu_args = (rigid, u_full, slow, aero._k)
+    assert aero_kernels.imu_batch(*imu_args, n_sigma, z_grouped) == modes * 2 * (nw + nv + 3)
+    assert aero_kernels.imu_batch(*imu_args, 1, z_every) == 0
+    np.testing.assert_array_equal(z_grouped, z_every)
+    np.testing.assert_array_equal(model.imu(0.0, full, u0).reshape(6, -1), z_every)
+
+
+def test_a_zero_of_the_other_sign_is_a_different_input(trimmed) -> None:
+    """Reuse needs bitwise-equal inputs: -0.0 and +0.0 compare equal but may not fly alike."""
+    aero, x0, u0 = trimmed
+    x = np.ascontiguousarray(np.repeat(x0[:, None], 2, axis=1))
+    x[4] = 0.0
+    x[4, 1] = -0.0
+    u = np.ascontiguousarray(np.repeat(u0[:, None], 2, axis=1))
+    out = np.empty((12, 2))
+    args = (x, u, np.zeros((6, 2)), np.zeros((15, 2)), aero._k, aero.dt_s)
+    z = np.empty((6, 2))
+    assert aero_kernels.step_batch(*args, 2, out) == 0
+    assert aero_kernels.imu_batch(x, u, args[3], aero._k, 2, z) == 0
+    x[4, 1] = 0.0
+    assert aero_kernels.step_batch(*args, 2, out) == 1
+    assert aero_kernels.imu_batch(x, u, args[3], aero._k, 2, z) == 1

@@ -205,6 +205,14 @@ class ObservabilityGate:
         ]
 
     @cached_property
+    def _failed_arrays(self) -> tuple[np.ndarray, np.ndarray, list[float]]:
+        """:attr:`_failed` as index arrays, and ``log(2 pi R_i)`` of each failed channel."""
+        modes = np.array([j for j, _ in self._failed], dtype=np.intp)
+        channels = np.array([i for _, i in self._failed], dtype=np.intp)
+        log_2pi_r = [np.log(2.0 * np.pi * self.noise_var[i]) for _, i in self._failed]
+        return modes, channels, log_2pi_r
+
+    @cached_property
     def _healthy(self) -> int | None:
         return next((j for j, m in enumerate(self.modes) if m.bits == 0), None)
 
@@ -238,12 +246,15 @@ class ObservabilityGate:
             return log_likelihood
         own = self.channel_prediction(t_s, np.ascontiguousarray(predicted_mean.T), u)
         out = np.array(log_likelihood, dtype=float)
-        for j, i in self._failed:
-            s_healthy = float(innovation_cov[healthy, i, i])
-            if abs(own[i, j]) > self.n_sigma * np.sqrt(s_healthy):
-                continue  # observable: the reading decides
+        modes, channels, log_2pi_r = self._failed_arrays
+        s_all = innovation_cov[healthy, channels, channels]
+        # observable: the reading decides (written so that a NaN prediction is not)
+        observable = np.abs(own[channels, modes]) > self.n_sigma * np.sqrt(s_all)
+        for f in np.flatnonzero(~observable).tolist():
+            j, i = self._failed[f]
+            s_healthy = float(s_all[f])
             r = self.noise_var[i]
-            zero_fit = -0.5 * (z[i] * z[i] / r + np.log(2.0 * np.pi * r))
+            zero_fit = -0.5 * (z[i] * z[i] / r + log_2pi_r[f])
             nu = innovation[healthy, i]
             healthy_fit = -0.5 * (nu * nu / s_healthy + np.log(2.0 * np.pi * s_healthy))
             out[j] += healthy_fit - zero_fit

@@ -289,15 +289,29 @@ def _centre_columns(cols, mean, angle):
 
 @numba.njit(cache=True, error_model="numpy")
 def _weighted_outer(rt, weights, acc):
-    """``acc = sum_s (r_s w_s) r_s'`` for rows ``rt[s]`` (full square; callers read i >= j)."""
+    """``acc = sum_s (r_s w_s) r_s'`` for rows ``rt[s]``: the lower triangle ``i >= j`` only.
+
+    The sum is symmetric, so callers read ``i >= j`` and mirror it (half the work of the
+    square); the upper triangle of ``acc`` stays zero.
+    """
     n_sigma, n = rt.shape
     _fill(acc, 0.0)
-    for s in range(n_sigma):
-        w = weights[s]
+    s = 0
+    while s + 4 <= n_sigma:  # four samples per pass: a quarter of the loads and stores of acc
+        w0, w1, w2, w3 = weights[s], weights[s + 1], weights[s + 2], weights[s + 3]
         for i in range(n):
-            a = rt[s, i] * w
-            for j in range(n):
-                acc[i, j] += a * rt[s, j]
+            a0, a1, a2, a3 = rt[s, i] * w0, rt[s + 1, i] * w1, rt[s + 2, i] * w2, rt[s + 3, i] * w3
+            for j in range(i + 1):
+                acc[i, j] += (a0 * rt[s, j] + a1 * rt[s + 1, j]) + (
+                    a2 * rt[s + 2, j] + a3 * rt[s + 3, j]
+                )
+        s += 4
+    for t in range(s, n_sigma):
+        w = weights[t]
+        for i in range(n):
+            a = rt[t, i] * w
+            for j in range(i + 1):
+                acc[i, j] += a * rt[t, j]
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -318,6 +332,11 @@ def predict_moments(
     ``x^ = sum_s Wm_s X_s`` (eq. 16, circular for angles), ``r_s = X_s - x^`` (eq. 17, angles
     wrapped), ``P = sum_s Wc_s r_s r_s' + add_cov`` (eq. 18, symmetric by construction).
 
+    The sums run over the distinct columns ``d`` of ``moved`` only, each weighted by the sum of
+    the weights of the columns that repeat it (``sum_{s: src[s] = d} W_s``): the same sums
+    regrouped, so equal up to rounding, without the ``2 nw`` copies of the centre the augmented
+    form carries (a third of its columns at the real-air model's sizes).
+
     Parameters
     ----------
     moved : ndarray, shape (nx, B, nd)
@@ -337,22 +356,27 @@ def predict_moments(
     """
     nx, batch, nd = moved.shape
     n_sigma = src.size
-    rt = np.empty((n_sigma, nx))
+    wm_d = np.zeros(nd)  # the weights of the distinct columns
+    wc_d = np.zeros(nd)
+    for s in range(n_sigma):
+        wm_d[src[s]] += wm[s]
+        wc_d[src[s]] += wc[s]
+    distinct = np.arange(nd)
+    rd = np.empty((nd, nx))
     acc = np.empty((nx, nx))
     m = np.empty(nx)
     sines = np.empty(nd)
     cosines = np.empty(nd)
     for b in range(batch):
-        _gather_moments(moved, b, src, wm, angle, rt, m, sines, cosines)
+        _gather_moments(moved, b, distinct, wm_d, angle, rd, m, sines, cosines)  # eq. (16)
+        _centre_columns(rd, m, angle)  # eq. (17)
         for i in range(nx):
             mean[b, i] = m[i]
             for s in range(n_sigma):
-                x_points[i, b, s] = rt[s, i]
-        _centre_columns(rt, m, angle)
-        for i in range(nx):
-            for s in range(n_sigma):
-                res[b, i, s] = rt[s, i]
-        _weighted_outer(rt, wc, acc)
+                d = src[s]
+                x_points[i, b, s] = moved[i, b, d]
+                res[b, i, s] = rd[d, i]
+        _weighted_outer(rd, wc_d, acc)  # eq. (18)
         for i in range(nx):
             for j in range(i + 1):
                 value = acc[i, j] + add_cov[i, j]
@@ -414,11 +438,20 @@ def _output_moments(
     for c in range(nz):
         for a in range(nx):
             cross[b, c, a] = 0.0
-    for s in range(n_sigma):
+    s = 0
+    while s + 4 <= n_sigma:  # four samples per pass, as in _weighted_outer
         for c in range(nz):
-            zc = zr[s, c]
+            z0, z1, z2, z3 = zr[s, c], zr[s + 1, c], zr[s + 2, c], zr[s + 3, c]
             for a in range(nx):
-                cross[b, c, a] += xw[s, a] * zc
+                cross[b, c, a] += (xw[s, a] * z0 + xw[s + 1, a] * z1) + (
+                    xw[s + 2, a] * z2 + xw[s + 3, a] * z3
+                )
+        s += 4
+    for t in range(s, n_sigma):
+        for c in range(nz):
+            zc = zr[t, c]
+            for a in range(nx):
+                cross[b, c, a] += xw[t, a] * zc
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -465,11 +498,11 @@ def _gain_update(
             gain_innov += white[i, a] * white_innov[i]
         new_mean[b, a] = pred_mean[b, a] + gain_innov
     _wrap_columns(new_mean[b : b + 1], x_angle)
-    _fill(outer, 0.0)  # eq. (23): P - W'W, symmetric by construction
+    _fill(outer, 0.0)  # eq. (23): P - W'W, symmetric by construction: its lower triangle
     for i in range(nz):
         for a in range(nx):
             wa = white[i, a]
-            for c in range(nx):
+            for c in range(a + 1):
                 outer[a, c] += wa * white[i, c]
     finite = True
     for a in range(nx):
@@ -597,6 +630,33 @@ def gain_update(
         ):  # fmt: skip
             n_nonfinite += 1
     return n_nonfinite
+
+
+@numba.njit(cache=True, error_model="numpy")
+def keep_consider(
+    consider: np.ndarray, pred_mean: np.ndarray, pred_cov: np.ndarray, new_mean: np.ndarray,
+    new_cov: np.ndarray,
+) -> None:  # fmt: skip
+    """Eqs. (22)-(23) with the consider rows of the gain zeroed (Schmidt): ``x_c``, ``P_cc`` kept.
+
+    Parameters
+    ----------
+    consider : ndarray of int64, shape (nc,)
+        Indices of the consider states.
+    pred_mean, pred_cov : ndarray, shapes (B, nx), (B, nx, nx)
+        ``x(k+1|k)``, ``P(k+1|k)``.
+    new_mean, new_cov : ndarray, shapes (B, nx), (B, nx, nx)
+        ``x(k+1|k+1)``, ``P(k+1|k+1)`` of the full update; their consider entries are reset to
+        the prediction's in place.
+    """
+    n_c = consider.size
+    for b in range(new_mean.shape[0]):
+        for a in range(n_c):
+            i = consider[a]
+            new_mean[b, i] = pred_mean[b, i]
+            for c in range(n_c):
+                j = consider[c]
+                new_cov[b, i, j] = pred_cov[b, i, j]
 
 
 # -- the IMM (eqs. 6-8, 26-28) -----------------------------------------------------------------

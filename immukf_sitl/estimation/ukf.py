@@ -185,6 +185,7 @@ class UnscentedKalmanFilter:
         self.kernels: ModuleType = load_kernels(backend)
         self.backend: str = "python" if backend == "python" else "numba"
         self._x_angle = angle_mask(process.nx, process.angle_idx)
+        self._consider = np.array(process.consider_idx, dtype=np.int64)
         # per measurement model: (model, angle mask, R as added by the update); and the
         # augmented form's constant measurement-noise sigma points per (model, batch)
         self._output_constants: dict[int, tuple] = {}
@@ -377,11 +378,8 @@ class UnscentedKalmanFilter:
                 pred_mean, pred_cov, cross, innovation, z_chol, self._x_angle, new_mean, new_cov,
                 nis, log_likelihood,
             )  # fmt: skip
-        consider = proc.consider_idx
-        if consider:  # eqs. (22)-(23) with the consider rows of K zeroed (Schmidt): x_c, P_cc kept
-            block = np.ix_(range(batch), consider, consider)
-            new_mean[:, consider] = pred_mean[:, consider]
-            new_cov[block] = pred_cov[block]
+        if self._consider.size:  # eqs. (22)-(23), consider rows of K zeroed: x_c, P_cc kept
+            kern.keep_consider(self._consider, pred_mean, pred_cov, new_mean, new_cov)
         diag.symmetrised += 2 * batch  # P_zz and P(k+1|k+1), symmetric by construction
         diag.outlier_innovations += int(np.count_nonzero(nis > outlier_nis_threshold(nz)))
 

@@ -394,7 +394,11 @@ class AeroModel:
             n = x[0].size
             x2, u2, v2 = self._flat(x, u, v, n)
             e2 = _zero_extra(n) if e is None else _writeable_contiguous(e.reshape(-1, n))
-            kernels.step_batch(x2, u2, v2, e2, self._k, self.dt_s, out.reshape(x.shape[0], n))
+            # columns repeating the first of their row (a filter's centre) reuse its result
+            period = x.shape[-1] if x.ndim > 1 else 1
+            kernels.step_batch(
+                x2, u2, v2, e2, self._k, self.dt_s, period, out.reshape(x.shape[0], n)
+            )
         else:
             scratch = [np.empty(x.shape) for _ in range(3)] + [np.empty((6, *x.shape[1:]))]
             e = np.zeros(kernels.N_EXTRA) if e is None else e
@@ -434,7 +438,8 @@ class AeroModel:
             n = x[0].size
             x2, u2 = self._flat_xu(x, u, n)
             e2 = _zero_extra(n) if e is None else _writeable_contiguous(e.reshape(-1, n))
-            kernels.imu_batch(x2, u2, e2, self._k, out.reshape(6, n))
+            period = x.shape[-1] if x.ndim > 1 else 1  # as in step_with
+            kernels.imu_batch(x2, u2, e2, self._k, period, out.reshape(6, n))
         else:
             e = np.zeros(kernels.N_EXTRA) if e is None else e
             scratch = np.empty((6, *x.shape[1:])), np.empty(x.shape)

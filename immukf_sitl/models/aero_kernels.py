@@ -56,6 +56,7 @@ from immukf_sitl.models.params import AircraftParams, Propulsion
 
 __all__ = [
     "NAMES",
+    "N_DYNAMIC_EXTRA",
     "N_EXTRA",
     "air_density",
     "air_relative",
@@ -135,6 +136,10 @@ FORCE_X = 6
 MOMENT_P = 9
 GPS_ERROR_N = 12
 N_EXTRA = 15
+#: The entries of ``e`` that :func:`derivatives` and :func:`imu` read: all before the GPS errors,
+#: which only :func:`gps` reads (they are last, so a sigma point that moves only them flies, and
+#: reads the IMU, as its centre).
+N_DYNAMIC_EXTRA = GPS_ERROR_N
 
 
 def _pack(values: dict[str, float]) -> np.ndarray:
@@ -610,6 +615,15 @@ def _column(a: np.ndarray, j: int, col: np.ndarray) -> None:
         col[i] = a[i, j]
 
 
+@_kernel
+def _bitwise_equal(p: float, q: float) -> bool:
+    """Whether ``p`` and ``q`` are the same double: equal, with equal sign bits.
+
+    Only +0 and -0 compare equal with different bits; NaN equals nothing.
+    """
+    return p == q and math.copysign(1.0, p) == math.copysign(1.0, q)
+
+
 @numba.njit(cache=True, error_model="numpy")
 def step_batch(
     x: np.ndarray,
@@ -618,15 +632,39 @@ def step_batch(
     e: np.ndarray,
     k: np.ndarray,
     dt: float,
+    period: int,
     out: np.ndarray,
-) -> None:
+) -> int:
     """:func:`rk4_step` of every column of x (12, N), u (4, N), v (6, N), e (15, N) into out.
 
     ``out`` is (12, N); ``e`` is not advanced (the caller owns the slow states' dynamics).
+    Columns come in groups of ``period`` (a filter's sigma points, centre first): a column whose
+    inputs (``x``, ``u``, ``v`` and the ``N_DYNAMIC_EXTRA`` entries of ``e`` the dynamics read)
+    are bitwise those of its group's first column takes that column's result, the same numbers
+    without the integration. The real-air filter's points that move only the GPS errors (the
+    last states: a lower Cholesky factor's last columns touch no other row) are such columns.
+    ``period = 1`` compares nothing. Returns the number of columns that took their group's
+    result.
     """
     xs, xt, kk, acc, xo = np.empty(12), np.empty(12), np.empty(12), np.empty(12), np.empty(12)
     us, vs, es, fm, xa = np.empty(4), np.empty(6), np.empty(N_EXTRA), np.empty(6), np.empty(12)
+    n_reused = 0
     for j in range(x.shape[1]):
+        first = j - j % period
+        same = first != j
+        for i in range(12):
+            same = same and _bitwise_equal(x[i, j], x[i, first])
+        for i in range(N_DYNAMIC_EXTRA):
+            same = same and _bitwise_equal(e[i, j], e[i, first])
+        for i in range(6):
+            same = same and _bitwise_equal(v[i, j], v[i, first])
+        for i in range(4):
+            same = same and _bitwise_equal(u[i, j], u[i, first])
+        if same:
+            for i in range(12):
+                out[i, j] = out[i, first]
+            n_reused += 1
+            continue
         _column(x, j, xs)
         _column(u, j, us)
         _column(v, j, vs)
@@ -634,6 +672,7 @@ def step_batch(
         rk4_step(xs, us, vs, es, k, dt, xt, kk, acc, fm, xa, xo)
         for i in range(12):
             out[i, j] = xo[i]
+    return n_reused
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -666,18 +705,41 @@ def forces_moments_batch(x: np.ndarray, u: np.ndarray, k: np.ndarray, out: np.nd
 
 
 @numba.njit(cache=True, error_model="numpy")
-def imu_batch(x: np.ndarray, u: np.ndarray, e: np.ndarray, k: np.ndarray, out: np.ndarray) -> None:
-    """:func:`imu` of every column of x (12, N), u (4, N), e (15, N) into out (6, N)."""
+def imu_batch(
+    x: np.ndarray, u: np.ndarray, e: np.ndarray, k: np.ndarray, period: int, out: np.ndarray
+) -> int:
+    """:func:`imu` of every column of x (12, N), u (4, N), e (15, N) into out (6, N).
+
+    As in :func:`step_batch`, a column whose inputs (``x``, ``u`` and the ``N_DYNAMIC_EXTRA``
+    entries of ``e``) are bitwise those of the first column of its group of ``period`` takes
+    that column's reading: in the augmented filter, the points that move only the measurement
+    noise or the GPS errors. Returns the number of such columns.
+    """
     xs, us, es, fm, zs, xa = (
         np.empty(12), np.empty(4), np.empty(N_EXTRA), np.empty(6), np.empty(6), np.empty(12)
     )  # fmt: skip
+    n_reused = 0
     for j in range(x.shape[1]):
+        first = j - j % period
+        same = first != j
+        for i in range(12):
+            same = same and _bitwise_equal(x[i, j], x[i, first])
+        for i in range(N_DYNAMIC_EXTRA):
+            same = same and _bitwise_equal(e[i, j], e[i, first])
+        for i in range(4):
+            same = same and _bitwise_equal(u[i, j], u[i, first])
+        if same:
+            for i in range(6):
+                out[i, j] = out[i, first]
+            n_reused += 1
+            continue
         _column(x, j, xs)
         _column(u, j, us)
         _column(e, j, es)
         imu(xs, us, es, k, fm, xa, zs)
         for i in range(6):
             out[i, j] = zs[i]
+    return n_reused
 
 
 # ---------------------------------------------------------------------------------------------
