@@ -45,7 +45,7 @@ def test_bench_json_has_the_promised_fields():
     }
     for (_, model), row in rows.items():
         assert row["modes"] == 7
-        assert row["states"] == (12 if model == "paper" else 27)
+        assert row["states"] == (12 if model == "paper" else 30)
         assert 0 < row["median_us"] <= row["p99_us"]
         assert row["diagnostics"]["steps"] >= row["steps"]
     ratio = rows["augmented", "real-air"]["median_us"] / rows["augmented", "paper"]["median_us"]

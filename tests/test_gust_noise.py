@@ -1,8 +1,7 @@
-"""Issue 9: the rotational gusts of the design turbulence in the real-air process noise."""
+"""Issue 9: the rotational gusts of the design turbulence as states of the real-air model."""
 
 from __future__ import annotations
 
-import dataclasses
 import math
 
 import numpy as np
@@ -10,14 +9,14 @@ import pytest
 import scipy.linalg
 
 from immukf_sitl.models.aero import AeroModel
-from immukf_sitl.models.earth import isa_density_kgpm3
+from immukf_sitl.models.augmented import GUST, N_AUGMENTED, N_RIGID, N_SLOW, AugmentedAeroModel
 from immukf_sitl.models.params import load_aircraft_params
+from immukf_sitl.models.sensors import SensorSpec
 from immukf_sitl.models.wind import TURBULENCE_LEVELS, milspec_low_altitude_sigmas
-from immukf_sitl.service.filters import build_aero_estimator
 from immukf_sitl.service.noise_model import (
-    gust_acceleration_cov,
     milspec_scale_lengths_m,
     rotational_gust_sigmas,
+    slow_state_noise,
 )
 from immukf_sitl.service.tuning import FilterTuning
 
@@ -72,39 +71,45 @@ def test_gust_rates_match_a_state_space_model_of_the_milspec_filters(model, leve
 def test_still_air_has_no_gusts(model) -> None:
     tuning = FilterTuning.real_air(design_turbulence="none")
     assert np.all(rotational_gust_sigmas(tuning, 2.9) == 0.0)
-    assert np.all(gust_acceleration_cov(model, tuning) == 0.0)
+    noise = slow_state_noise(model.params, SensorSpec(), tuning)
+    assert np.all(noise.initial_sigma[GUST] == 0.0) and np.all(noise.stationary_sigma[GUST] == 0.0)
 
 
-def test_gust_acceleration_is_the_damping_derivatives_times_the_gust_rates(model) -> None:
-    """The roll, pitch and yaw rows against the textbook damping terms (B&M eqs. 4.6, 5.x)."""
+def test_gust_states_are_the_milspec_processes(model) -> None:
+    """Sigma of the MIL-F-8785C gust rates, time constants of JSBSim's generator (Yeager)."""
     tuning = FilterTuning.real_air(design_turbulence="moderate")
-    params = model.params
-    cov = gust_acceleration_cov(model, tuning)
-    assert np.allclose(cov, cov.T) and np.all(np.linalg.eigvalsh(cov) > -1e-12)
-    sigmas = rotational_gust_sigmas(tuning, params.geometry.b_m)
-    x_trim, _ = model.trim(tuning.design_airspeed_mps)
-    speed = float(np.linalg.norm(x_trim[3:6]))
-    rho = isa_density_kgpm3(model.origin.alt_m)  # the model's ISA at the trim's height
-    g, c, m = params.geometry, params.aero, params.mass
-    qbar_s = 0.5 * rho * speed**2 * g.S_m2
-    jx, jz, jxz = m.Jx_kgm2, m.Jz_kgm2, m.Jxz_kgm2
-    gamma = jx * jz - jxz**2
-    # roll acceleration per unit roll rate: (Jz dL/dp + Jxz dN/dp) / Gamma
-    d_ell = qbar_s * g.b_m * c.C_ell_p * g.b_m / (2.0 * speed)
-    d_n = qbar_s * g.b_m * c.C_n_p * g.b_m / (2.0 * speed)
-    roll_from_p = (jz * d_ell + jxz * d_n) / gamma
-    pitch_from_q = qbar_s * g.c_m * c.C_m_q * g.c_m / (2.0 * speed) / m.Jy_kgm2
-    # each diagonal entry sums the three gust axes; roll is dominated by p_g, pitch is q_g alone
-    assert math.sqrt(cov[4, 4]) == pytest.approx(abs(pitch_from_q) * sigmas[1], rel=0.02)
-    assert math.sqrt(cov[3, 3]) >= abs(roll_from_p) * sigmas[0] * 0.98
-    assert math.sqrt(cov[3, 3]) == pytest.approx(abs(roll_from_p) * sigmas[0], rel=0.1)
-    # four times the variance from light to moderate (W20 doubles)
-    light = gust_acceleration_cov(model, dataclasses.replace(tuning, design_turbulence="light"))
-    assert np.allclose(cov, 4.0 * light, rtol=1e-6, atol=1e-12)
+    span = model.params.geometry.b_m
+    noise = slow_state_noise(model.params, SensorSpec(), tuning)
+    sigmas = rotational_gust_sigmas(tuning, span)
+    assert np.array_equal(noise.initial_sigma[GUST], sigmas)
+    assert np.array_equal(noise.stationary_sigma[GUST], sigmas)
+    l_w = milspec_scale_lengths_m(tuning.design_height_m)[2]
+    speed = tuning.design_airspeed_mps
+    tau = [
+        math.sqrt(l_w * span) / 2.6 / speed,
+        4 * span / (math.pi * speed),
+        3 * span / (math.pi * speed),
+    ]
+    np.testing.assert_allclose(1.0 / noise.decay_per_s[GUST], tau, rtol=1e-12)
+    assert 0.1 < min(tau) and max(tau) < 0.4  # fast: ten to forty 10 ms steps
 
 
-def test_gusts_reach_the_real_air_filters_process_noise_only(model) -> None:
-    paper = build_aero_estimator("ukf2", model, tuning=FilterTuning())
-    real = build_aero_estimator("ukf2", model, tuning=FilterTuning.real_air())
-    gusts = gust_acceleration_cov(model, FilterTuning.real_air())
-    assert np.allclose(real.imm.ukf.process.noise_cov - paper.imm.ukf.process.noise_cov, gusts)
+def test_the_aerodynamics_see_the_rates_relative_to_the_turning_air(model) -> None:
+    """A gust state omega_g gives the forces and moments of the body rates omega - omega_g."""
+    aug = AugmentedAeroModel(model, np.zeros(N_SLOW))
+    x0, u0 = model.trim(25.0)
+    x0[9:12] = [0.2, -0.1, 0.05]
+    gust = np.array([0.08, 0.03, -0.04])
+    x = np.zeros(N_AUGMENTED)
+    x[:N_RIGID] = x0
+    x[N_RIGID + GUST.start : N_RIGID + GUST.stop] = gust
+    turned = x0.copy()
+    turned[9:12] -= gust
+    fm_air = model.forces_moments(0.0, turned, u0)
+    # the IMU's specific force is the aerodynamic force of the air-relative rates
+    imu = aug.imu(0.0, x, u0)
+    np.testing.assert_allclose(imu[:3], fm_air[:3] / model.params.mass.mass_kg, rtol=1e-12)
+    np.testing.assert_allclose(imu[3:], x0[9:12])  # the gyros read the inertial rates
+    # in still-turning air (no gust) the same state gives other forces
+    still = aug.imu(0.0, np.concatenate([x0, np.zeros(N_SLOW)]), u0)
+    assert np.max(np.abs(still[:3] - imu[:3])) > 1e-3

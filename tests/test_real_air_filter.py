@@ -18,6 +18,7 @@ from immukf_sitl.models.augmented import (
     GYRO_BIAS,
     N_AUGMENTED,
     N_RIGID,
+    N_SLOW,
     WIND,
     AugmentedAeroModel,
     model_error_sigmas,
@@ -46,13 +47,13 @@ def trimmed(params):
 
 
 def _augmented(aero: AeroModel, decay: np.ndarray | None = None) -> AugmentedAeroModel:
-    return AugmentedAeroModel(aero, np.zeros(15) if decay is None else decay)
+    return AugmentedAeroModel(aero, np.zeros(N_SLOW) if decay is None else decay)
 
 
 def test_zero_slow_states_fly_the_book_model(trimmed) -> None:
     aero, x0, u0 = trimmed
     model = _augmented(aero)
-    x = np.concatenate([x0, np.zeros(15)])
+    x = np.concatenate([x0, np.zeros(N_SLOW)])
     x[9:12] = [0.05, -0.02, 0.03]
     np.testing.assert_array_equal(model.step(0.0, x, u0)[:N_RIGID], aero.step(0.0, x[:N_RIGID], u0))
     np.testing.assert_array_equal(model.imu(0.0, x, u0), aero.imu(0.0, x[:N_RIGID], u0))
@@ -64,7 +65,7 @@ def test_wind_acts_through_the_air_relative_velocity(trimmed) -> None:
     x0 = x0.copy()
     x0[6:9] = [0.2, 0.05, 1.0]  # banked, heading east-north-east
     wind = np.array([3.0, -4.0, 0.5])
-    x = np.concatenate([x0, np.zeros(15)])
+    x = np.concatenate([x0, np.zeros(N_SLOW)])
     x[N_RIGID + WIND.start : N_RIGID + WIND.stop] = wind
     x[3:6] = x0[3:6] + body_to_ned(x0[6:9]).T @ wind  # ground velocity in body axes
     still = x0.copy()  # the same aircraft, air-relative velocity x0's, still air
@@ -79,7 +80,7 @@ def test_wind_acts_through_the_air_relative_velocity(trimmed) -> None:
 def test_gyro_bias_and_gps_error_add_to_the_readings(trimmed) -> None:
     aero, x0, u0 = trimmed
     model = _augmented(aero)
-    x = np.concatenate([x0, np.zeros(15)])
+    x = np.concatenate([x0, np.zeros(N_SLOW)])
     plain_imu, plain_gps = model.imu(0.0, x, u0), model.gps(0.0, x, u0)
     x[N_RIGID + GYRO_BIAS.start : N_RIGID + GYRO_BIAS.stop] = [0.01, -0.02, 0.03]
     x[N_RIGID + GPS_ERROR.start : N_RIGID + GPS_ERROR.stop] = [4.0, -3.0, 7.0]
@@ -91,9 +92,9 @@ def test_gyro_bias_and_gps_error_add_to_the_readings(trimmed) -> None:
 
 def test_slow_states_decay_exactly(trimmed) -> None:
     aero, x0, u0 = trimmed
-    decay = np.linspace(0.0, 2.0, 15)
+    decay = np.linspace(0.0, 2.0, N_SLOW)
     model = _augmented(aero, decay)
-    x = np.concatenate([x0, np.ones(15)])
+    x = np.concatenate([x0, np.ones(N_SLOW)])
     x[N_RIGID + WIND.start : N_RIGID + WIND.stop] = 0.0  # keep the air still for this one
     out = model.step(0.0, x, u0)
     expected = x[N_RIGID:] * np.exp(-decay * aero.dt_s)
@@ -320,8 +321,9 @@ def test_perturbed_airframe_in_wind_flies_without_a_declaration() -> None:
 
 
 def test_the_dynamics_do_not_read_the_gps_errors(trimmed) -> None:
-    """What lets a sigma point that moves only the GPS errors fly as its centre: the rigid body's
-    derivative, RK4 step and IMU ignore ``e`` from ``N_DYNAMIC_EXTRA`` on (bit for bit)."""
+    """What lets a sigma point that moves only the gyro biases and GPS errors fly as its centre:
+    the rigid body's derivative and RK4 step ignore ``e`` from ``N_DYNAMIC_EXTRA`` on, the IMU
+    from ``N_OUTPUT_EXTRA`` on (bit for bit)."""
     aero, x0, u0 = trimmed
     rng = np.random.default_rng(21)
     n = 9
@@ -330,10 +332,12 @@ def test_the_dynamics_do_not_read_the_gps_errors(trimmed) -> None:
     v = rng.standard_normal((6, n))
     e = 0.1 * rng.standard_normal((aero_kernels.N_EXTRA, n))
     moved_e = e.copy()
-    moved_e[aero_kernels.N_DYNAMIC_EXTRA :] = 50.0 * rng.standard_normal((3, n))
+    moved_e[aero_kernels.N_DYNAMIC_EXTRA :] = 50.0 * rng.standard_normal((6, n))
+    gps_moved_e = e.copy()
+    gps_moved_e[aero_kernels.N_OUTPUT_EXTRA :] = 50.0 * rng.standard_normal((3, n))
     k = aero._k
     steps, rates, imus = [], [], []
-    for extra in (e, moved_e):
+    for extra in (e, moved_e, gps_moved_e):
         out, xd, z = np.empty((12, n)), np.empty((12, n)), np.empty((6, n))
         aero_kernels.step_batch(x, u, v, extra, k, aero.dt_s, 1, out)
         aero_kernels.derivatives_batch(x, u, v, extra, k, xd)
@@ -343,19 +347,21 @@ def test_the_dynamics_do_not_read_the_gps_errors(trimmed) -> None:
         imus.append(z)
     np.testing.assert_array_equal(steps[0], steps[1])
     np.testing.assert_array_equal(rates[0], rates[1])
-    np.testing.assert_array_equal(imus[0], imus[1])
+    np.testing.assert_array_equal(imus[0], imus[2])
+    assert np.max(np.abs(imus[0][3:] - imus[1][3:])) > 1.0  # the gyros read their biases
 
 
 def test_sigma_points_moving_only_the_gps_errors_fly_as_their_centre(trimmed) -> None:
-    """The real-air filter's RK4 batch: the 2 x 3 points of each mode that move only the GPS
-    errors reuse the centre's integration, and the step equals integrating every column."""
+    """The real-air filter's RK4 batch: the 2 x 6 points of each mode that move only the gyro
+    biases and GPS errors reuse the centre's integration, and the step equals integrating every
+    column."""
     aero, x0, u0 = trimmed
-    model = _augmented(aero, np.full(15, 0.01))
+    model = _augmented(aero, np.full(N_SLOW, 0.01))
     rng = np.random.default_rng(22)
     modes, nv = 7, 6
     a = rng.standard_normal((modes, N_AUGMENTED, N_AUGMENTED))
     cov = 1e-3 * (a @ a.transpose(0, 2, 1)) + 1e-4 * np.eye(N_AUGMENTED)
-    mean = np.concatenate([x0, 0.1 * rng.standard_normal(15)]) + 0.01 * rng.standard_normal(
+    mean = np.concatenate([x0, 0.1 * rng.standard_normal(N_SLOW)]) + 0.01 * rng.standard_normal(
         (modes, N_AUGMENTED)
     )
     n_distinct = 1 + 2 * (N_AUGMENTED + nv)
@@ -365,11 +371,11 @@ def test_sigma_points_moving_only_the_gps_errors_fly_as_their_centre(trimmed) ->
         mean, np.linalg.cholesky(cov), 0.3 * np.eye(nv), 6.0, x, v
     )  # eqs. (9)-(11)
     flat = [np.ascontiguousarray(a.reshape(a.shape[0], -1)) for a in (x[:N_RIGID], v)]
-    e = np.ascontiguousarray(x[N_RIGID:].reshape(15, -1))
+    e = np.ascontiguousarray(x[N_RIGID:].reshape(N_SLOW, -1))
     u = np.ascontiguousarray(np.repeat(u0[:, None], modes * n_distinct, axis=1))
     grouped, every = np.empty((12, modes * n_distinct)), np.empty((12, modes * n_distinct))
     args = (flat[0], u, flat[1], e, aero._k, aero.dt_s)
-    assert aero_kernels.step_batch(*args, n_distinct, grouped) == modes * 2 * 3
+    assert aero_kernels.step_batch(*args, n_distinct, grouped) == modes * 2 * 6
     assert aero_kernels.step_batch(*args, 1, every) == 0
     np.testing.assert_array_equal(grouped, every)
     # and the model's step, which passes the sigma axis as the period, is that result
@@ -383,7 +389,7 @@ def test_sigma_points_moving_only_the_gps_errors_fly_as_their_centre(trimmed) ->
     n_sigma = source.size
     z_grouped, z_every = np.empty((6, modes * n_sigma)), np.empty((6, modes * n_sigma))
     rigid = np.ascontiguousarray(full[:N_RIGID].reshape(12, -1))
-    slow = np.ascontiguousarray(full[N_RIGID:].reshape(15, -1))
+    slow = np.ascontiguousarray(full[N_RIGID:].reshape(N_SLOW, -1))
     u_full = np.ascontiguousarray(np.repeat(u0[:, None], modes * n_sigma, axis=1))
     imu_args = (rigid, u_full, slow, aero._k)
     assert aero_kernels.imu_batch(*imu_args, n_sigma, z_grouped) == modes * 2 * (nw + nv + 3)

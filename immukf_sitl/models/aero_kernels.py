@@ -58,6 +58,7 @@ __all__ = [
     "NAMES",
     "N_DYNAMIC_EXTRA",
     "N_EXTRA",
+    "N_OUTPUT_EXTRA",
     "air_density",
     "air_relative",
     "angular_acceleration",
@@ -128,18 +129,23 @@ _TWO_PI = 2.0 * math.pi
 
 #: Layout of ``e``, the slowly varying states of the filter's model that follow the 12 rigid-body
 #: states (:class:`immukf_sitl.models.augmented.AugmentedAeroModel`; zeros for the aircraft
-#: itself): wind NED (m/s), gyro biases p, q, r (rad/s), specific-force corrections x, y, z
-#: (m/s^2), angular-acceleration corrections p, q, r (rad/s^2), GPS position errors NED (m).
+#: itself): wind NED (m/s), specific-force corrections x, y, z (m/s^2), angular-acceleration
+#: corrections p, q, r (rad/s^2), rotational gusts p, q, r (rad/s, the air's rotation about the
+#: aircraft), gyro biases p, q, r (rad/s), GPS position errors NED (m).
 WIND_N, WIND_E, WIND_D = 0, 1, 2
-GYRO_BIAS_P = 3
-FORCE_X = 6
-MOMENT_P = 9
-GPS_ERROR_N = 12
-N_EXTRA = 15
-#: The entries of ``e`` that :func:`derivatives` and :func:`imu` read: all before the GPS errors,
-#: which only :func:`gps` reads (they are last, so a sigma point that moves only them flies, and
-#: reads the IMU, as its centre).
-N_DYNAMIC_EXTRA = GPS_ERROR_N
+FORCE_X = 3
+MOMENT_P = 6
+GUST_P = 9
+GYRO_BIAS_P = 12
+GPS_ERROR_N = 15
+N_EXTRA = 18
+#: The entries of ``e`` that :func:`derivatives` reads: all before the gyro biases, which only
+#: :func:`imu` reads, and the GPS errors, which only :func:`gps` reads. Those come last, so that
+#: a sigma point that moves only them (a lower Cholesky factor's last columns touch no other
+#: row) flies as its centre, and one that moves only the GPS errors reads the IMU as it.
+N_DYNAMIC_EXTRA = GYRO_BIAS_P
+#: The entries of ``e`` that :func:`imu` reads: all before the GPS errors.
+N_OUTPUT_EXTRA = GPS_ERROR_N
 
 
 def _pack(values: dict[str, float]) -> np.ndarray:
@@ -430,11 +436,13 @@ def air_relative(
     cps: Value,
     xa: np.ndarray,
 ) -> None:
-    """``x`` with its body velocity made relative to the air moving at ``e[0:3]`` (NED), in ``xa``.
+    """``x`` made relative to the air moving at ``e[0:3]`` (NED) and turning at ``e[12:15]``.
 
     The forces and moments depend on the velocity through the air, ``v_a = v_g - R_bn w``
-    (B&M eq. 2.5); the rigid-body equations keep the ground velocity. ``sph`` ... ``cps`` are the
-    sines and cosines of ``x``'s Euler angles (the caller has them).
+    (B&M eq. 2.5), and on the rates relative to the air, ``omega - omega_g`` (the rotational
+    gusts of MIL-F-8785C, applied so by JSBSim); the rigid-body equations keep the ground
+    velocity and the inertial rates. ``sph`` ... ``cps`` are the sines and cosines of ``x``'s
+    Euler angles (the caller has them).
     """
     w_u, w_v, w_w = rotate_ned_to_body(
         e[WIND_N], e[WIND_E], e[WIND_D], sph, cph, sth, cth, sps, cps
@@ -444,6 +452,9 @@ def air_relative(
     xa[3] = x[3] - w_u
     xa[4] = x[4] - w_v
     xa[5] = x[5] - w_w
+    xa[9] = x[9] - e[GUST_P]
+    xa[10] = x[10] - e[GUST_P + 1]
+    xa[11] = x[11] - e[GUST_P + 2]
 
 
 @_kernel
@@ -641,8 +652,9 @@ def step_batch(
     Columns come in groups of ``period`` (a filter's sigma points, centre first): a column whose
     inputs (``x``, ``u``, ``v`` and the ``N_DYNAMIC_EXTRA`` entries of ``e`` the dynamics read)
     are bitwise those of its group's first column takes that column's result, the same numbers
-    without the integration. The real-air filter's points that move only the GPS errors (the
-    last states: a lower Cholesky factor's last columns touch no other row) are such columns.
+    without the integration. The real-air filter's points that move only the gyro biases and
+    the GPS errors (the last states: a lower Cholesky factor's last columns touch no other row)
+    are such columns.
     ``period = 1`` compares nothing. Returns the number of columns that took their group's
     result.
     """
@@ -710,7 +722,7 @@ def imu_batch(
 ) -> int:
     """:func:`imu` of every column of x (12, N), u (4, N), e (15, N) into out (6, N).
 
-    As in :func:`step_batch`, a column whose inputs (``x``, ``u`` and the ``N_DYNAMIC_EXTRA``
+    As in :func:`step_batch`, a column whose inputs (``x``, ``u`` and the ``N_OUTPUT_EXTRA``
     entries of ``e``) are bitwise those of the first column of its group of ``period`` takes
     that column's reading: in the augmented filter, the points that move only the measurement
     noise or the GPS errors. Returns the number of such columns.
@@ -724,7 +736,7 @@ def imu_batch(
         same = first != j
         for i in range(12):
             same = same and _bitwise_equal(x[i, j], x[i, first])
-        for i in range(N_DYNAMIC_EXTRA):
+        for i in range(N_OUTPUT_EXTRA):
             same = same and _bitwise_equal(e[i, j], e[i, first])
         for i in range(4):
             same = same and _bitwise_equal(u[i, j], u[i, first])

@@ -5,17 +5,19 @@ coefficients are not the book's. The paper's model knows none of these, and a fi
 it blames every such difference on a sensor (README, "Real air"). In the spirit of
 vehicle-dynamic-model navigation (Mwenegoha et al., J. Navigation 74(6), 2021: wind and
 parameter uncertainty as states) and of every autopilot EKF (ArduPilot EKF3, PX4 EKF2: wind
-and IMU biases as states), the state grows by 15 slowly varying quantities:
+and IMU biases as states), the state grows by 18 slowly varying quantities:
 
 ==========  =====  ==============================================================  =========
 states      index  what                                                            unit
 ==========  =====  ==============================================================  =========
 wind        12-14  air mass velocity, NED: the forces see ``v_g - R_bn w``          m/s
-gyro bias   15-17  added to the body rates the gyros read                          rad/s
-force       18-20  specific force the book's model misses (body axes); in the      m/s^2
+force       15-17  specific force the book's model misses (body axes); in the      m/s^2
                    dynamics and in what the accelerometers read
-moment      21-23  angular acceleration the book's model misses (body axes)        rad/s^2
-GPS error   24-26  the receiver's Gauss-Markov position error, NED (B&M eq. 7.17)  m
+moment      18-20  angular acceleration the book's model misses (body axes)        rad/s^2
+gust        21-23  the air's rotation about the aircraft (MIL-F-8785C p_g, q_g,    rad/s
+                   r_g, body axes): the forces and moments see ``omega - omega_g``
+gyro bias   24-26  added to the body rates the gyros read                          rad/s
+GPS error   27-29  the receiver's Gauss-Markov position error, NED (B&M eq. 7.17)  m
 ==========  =====  ==============================================================  =========
 
 One specific-force correction stands for both an accelerometer bias and a force-model error:
@@ -24,7 +26,9 @@ the two differ only in whether the velocity feels them, an effect of the acceler
 error of a 10 % airframe is tens of times larger (:func:`model_error_sigmas`). The rigid-body
 equations keep the ground velocity; the slow states are held over an integration step and then
 decay exactly as first-order Gauss-Markov processes with the rates ``decay_per_s`` (0: a random
-walk). Their noise is the filter designer's (``immukf_sitl.service.noise_model``).
+walk); the gusts are fast ones (0.1-0.3 s). The states the rigid-body dynamics do not read
+(gyro biases, GPS errors) come last: their sigma points fly as the centre does. Their noise
+is the filter designer's (``immukf_sitl.service.noise_model``).
 """
 
 from __future__ import annotations
@@ -44,6 +48,7 @@ from immukf_sitl.models.params import AircraftParams
 __all__ = [
     "FORCE",
     "GPS_ERROR",
+    "GUST",
     "GYRO_BIAS",
     "MOMENT",
     "N_AUGMENTED",
@@ -61,28 +66,30 @@ N_SLOW = aero_kernels.N_EXTRA
 N_AUGMENTED = N_RIGID + N_SLOW
 # the slow states' groups, as slices of the slow part ``x[12:]`` (add 12 for the full state)
 WIND = slice(0, 3)
-GYRO_BIAS = slice(3, 6)
-FORCE = slice(6, 9)
-MOMENT = slice(9, 12)
-GPS_ERROR = slice(12, 15)
+FORCE = slice(3, 6)
+MOMENT = slice(6, 9)
+GUST = slice(9, 12)
+GYRO_BIAS = slice(12, 15)
+GPS_ERROR = slice(15, 18)
 SLOW_STATE_LABELS: tuple[str, ...] = (
     "wind_n_mps", "wind_e_mps", "wind_d_mps",
-    "gyro_bias_p_radps", "gyro_bias_q_radps", "gyro_bias_r_radps",
     "force_x_mps2", "force_y_mps2", "force_z_mps2",
     "moment_p_radps2", "moment_q_radps2", "moment_r_radps2",
+    "gust_p_radps", "gust_q_radps", "gust_r_radps",
+    "gyro_bias_p_radps", "gyro_bias_q_radps", "gyro_bias_r_radps",
     "gps_error_n_m", "gps_error_e_m", "gps_error_d_m",
 )  # fmt: skip
 
 
 @dataclass(frozen=True)
 class AugmentedAeroModel:
-    """``x = [12 rigid-body states of AeroModel, 15 slow states]`` (module docstring).
+    """``x = [12 rigid-body states of AeroModel, 18 slow states]`` (module docstring).
 
     Parameters
     ----------
     aero : AeroModel
         The book's aircraft (its ``dt_s`` is the step).
-    decay_per_s : ndarray, shape (15,)
+    decay_per_s : ndarray, shape (18,)
         Inverse time constants of the slow states (1/s); 0 makes a state a random walk.
     """
 
@@ -110,7 +117,7 @@ class AugmentedAeroModel:
     ) -> np.ndarray:
         """State after one step: RK4 of the rigid body (slow states held), then their decay.
 
-        ``x`` ``(27, *batch)``; ``u``, ``v`` as :meth:`AeroModel.step`.
+        ``x`` ``(30, *batch)``; ``u``, ``v`` as :meth:`AeroModel.step`.
         """
         x = np.asarray(x, dtype=float)
         out = np.empty(x.shape)

@@ -44,6 +44,7 @@ from immukf_sitl.models.aero import AeroModel
 from immukf_sitl.models.augmented import (
     FORCE,
     GPS_ERROR,
+    GUST,
     GYRO_BIAS,
     MOMENT,
     N_RIGID,
@@ -55,11 +56,7 @@ from immukf_sitl.models.ins import InsModel
 from immukf_sitl.models.params import AircraftParams
 from immukf_sitl.models.sensors import IMU_PERIOD_S, SensorSpec
 from immukf_sitl.service.alignment import NavSolution
-from immukf_sitl.service.noise_model import (
-    SlowStateNoise,
-    gust_acceleration_cov,
-    slow_state_noise,
-)
+from immukf_sitl.service.noise_model import SlowStateNoise, slow_state_noise
 from immukf_sitl.service.tuning import FilterTuning
 
 Variant = Literal["ukf1", "ukf2", "ukf3", "imm"]
@@ -72,23 +69,24 @@ def aero_process_model(
     noise: SlowStateNoise | None,
     sensors: SensorSpec,
     tuning: FilterTuning,
-    gust_cov: np.ndarray | None = None,
 ) -> ProcessModel:
     """``x(k+1) = f[x(k), u(k), v(k)]`` (eq. 1): RK4 of the 6-DOF model with its slow states.
 
     ``v`` is additive on the body and angular accelerations, with standard deviations
     ``tuning.process_noise_factor`` times the accelerometer (m/s^2) and gyro (rad/s, read as
-    rad/s^2) noise, plus ``gust_cov`` (6x6, the rotational gusts' effect,
-    :func:`~immukf_sitl.service.noise_model.gust_acceleration_cov`): the fast residue the slow
-    states do not carry, held over a step (the gusts' correlation times, 0.1-0.3 s, are ten
-    steps and more). The slow states' driving
-    noise (``noise``) is linear and enters ``P(k+1|k)`` directly (``state_noise_cov``). The
-    filter's control argument is the pair ``[u(k), u(k+1)]`` (shape (2, 4)): ``f`` flies the
-    step on ``u(k)``, the output model predicts the IMU at ``k+1`` with ``u(k+1)`` (the
-    specific force depends on the surfaces and throttle acting at the sample).
+    rad/s^2) noise: the fast residue the slow states do not carry. With slow states (the
+    real-air model), ``v`` is the three body accelerations only: the angular accelerations'
+    fast part is the rotational gusts', carried as states, and a white residue under them
+    would cost six sigma points per mode for nothing. The slow states' driving noise
+    (``noise``) is linear and rides on the sigma points (``state_noise_cov``). The filter's
+    control argument is the pair ``[u(k), u(k+1)]`` (shape (2, 4)): ``f`` flies the step on
+    ``u(k)``, the output model predicts the IMU at ``k+1`` with ``u(k+1)`` (the specific force
+    depends on the surfaces and throttle acting at the sample).
     """
     sigma = tuning.process_noise_factor * sensors.imu.sigmas
-    q = np.diag(sigma**2) if gust_cov is None else np.diag(sigma**2) + gust_cov
+    noisy = [3, 4, 5, 9, 10, 11] if noise is None else [3, 4, 5]  # the rows v moves
+    sigma = sigma[: len(noisy)]
+    q = np.diag(sigma**2)
     dt = model.dt_s
     nx = model.nx
     slow = np.zeros((nx, nx))  # referred to the step's end
@@ -97,13 +95,23 @@ def aero_process_model(
         q_slow = noise.step_variance(dt)
         slow[N_RIGID:, N_RIGID:] = np.diag(q_slow)
         slow_at_start[N_RIGID:, N_RIGID:] = np.diag(q_slow * np.exp(2.0 * noise.decay_per_s * dt))
-    # additive form: v held over one step moves velocity and rates by v dt
+    # additive form: v held over one step moves velocity (and rates) by v dt
     additive = slow.copy()
-    vel_rates = [3, 4, 5, 9, 10, 11]
-    additive[np.ix_(vel_rates, vel_rates)] = q * dt**2
+    additive[np.ix_(noisy, noisy)] = q * dt**2
 
-    def f(t_s: float, x: np.ndarray, u: np.ndarray, v: np.ndarray | None) -> np.ndarray:
-        return model.step(t_s, x, u[0], v)
+    if len(noisy) == 6:
+
+        def f(t_s: float, x: np.ndarray, u: np.ndarray, v: np.ndarray | None) -> np.ndarray:
+            return model.step(t_s, x, u[0], v)
+
+    else:
+
+        def f(t_s: float, x: np.ndarray, u: np.ndarray, v: np.ndarray | None) -> np.ndarray:
+            if v is not None:  # the body accelerations only: zero on the angular ones
+                full = np.zeros((6,) + v.shape[1:])
+                full[:3] = v
+                v = full
+            return model.step(t_s, x, u[0], v)
 
     return ProcessModel(
         f=f,
@@ -122,6 +130,7 @@ SLOW_STATE_GROUPS = {
     "gyro_bias": GYRO_BIAS,
     "force": FORCE,
     "moment": MOMENT,
+    "gust": GUST,
     "gps_error": GPS_ERROR,
 }
 
@@ -452,10 +461,9 @@ def build_aero_estimator(
     if tuning.slow_states:
         noise: SlowStateNoise | None = slow_state_noise(model.params, sensors, tuning)
         flown: AeroModel | AugmentedAeroModel = AugmentedAeroModel(model, noise.decay_per_s)
-        gust_cov: np.ndarray | None = gust_acceleration_cov(model, tuning)
     else:
-        noise, flown, gust_cov = None, model, None
-    process = aero_process_model(flown, noise, sensors, tuning, gust_cov)
+        noise, flown = None, model
+    process = aero_process_model(flown, noise, sensors, tuning)
     points = (
         JulierSigmaPoints(kappa)
         if tuning.sigma_point_alpha is None

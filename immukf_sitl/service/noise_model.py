@@ -1,6 +1,6 @@
 """Noise of the filter model's slow states, derived from documented quantities, not tuned.
 
-Each of the 15 slow states of :class:`~immukf_sitl.models.augmented.AugmentedAeroModel` is a
+Each of the 18 slow states of :class:`~immukf_sitl.models.augmented.AugmentedAeroModel` is a
 first-order Gauss-Markov process (or a random walk) whose parameters come from a published
 number:
 
@@ -20,13 +20,13 @@ number:
   specific force (a Gauss-Markov process at the error's full size) would also follow a sensor
   dying slowly into view: the healthy filter would absorb the fault.
 - **moment correction**: the same, for the angular acceleration.
-- **rotational gusts** (not a slow state: the white process noise of the body and angular
-  accelerations): the turbulence's gust gradients turn the air about the aircraft (MIL-F-8785C /
-  MIL-HDBK-1797 ``p_g``, ``q_g``, ``r_g``), which the model's rate derivatives (``C_lp``,
-  ``C_mq``, ``C_nr``, ...) make into angular accelerations of about 1 rad/s^2 in moderate
-  turbulence, 40 times the old white noise; the wind states cannot carry them (their
-  correlation times are 0.1-0.3 s). :func:`rotational_gust_sigmas` gives the gust rates at the
-  design air, :func:`gust_acceleration_cov` what they do to the model.
+- **rotational gusts**: the turbulence's gust gradients turn the air about the aircraft
+  (MIL-F-8785C / MIL-HDBK-1797 ``p_g``, ``q_g``, ``r_g``; :func:`rotational_gust_sigmas`), which
+  the model's rate derivatives (``C_lp``, ``C_mq``, ``C_nr``, ...) make into angular
+  accelerations of 0.4-3 rad/s^2 in moderate turbulence. First-order Gauss-Markov processes of
+  those sigmas and the time constants of JSBSim's generator (0.32, 0.15, 0.11 s at 25 m/s): as
+  states, the one-step prediction of the rates stays tight (the gust is nearly the same from
+  one 10 ms step to the next) while their spread over a second is the turbulence's.
 - **GPS error**: the receiver's own Gauss-Markov model (B&M eq. 7.17): rate ``k_GPS``, driving
   sigmas per fix; stationary sigma ``sigma / sqrt(1 - exp(-2 k_GPS T_s))`` (4.9 m with the
   defaults). The first fix is where the filter starts, so the state starts at that sigma.
@@ -40,10 +40,10 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.integrate
 
-from immukf_sitl.models.aero import AeroModel
 from immukf_sitl.models.augmented import (
     FORCE,
     GPS_ERROR,
+    GUST,
     GYRO_BIAS,
     MOMENT,
     N_SLOW,
@@ -57,7 +57,6 @@ from immukf_sitl.service.tuning import FilterTuning
 
 __all__ = [
     "SlowStateNoise",
-    "gust_acceleration_cov",
     "milspec_scale_lengths_m",
     "rotational_gust_sigmas",
     "slow_state_noise",
@@ -75,7 +74,7 @@ def milspec_scale_lengths_m(height_m: float) -> np.ndarray:
 
 @dataclass(frozen=True)
 class SlowStateNoise:
-    """Initial sigmas, decay rates and driving noise of the 15 slow states.
+    """Initial sigmas, decay rates and driving noise of the 18 slow states.
 
     Attributes
     ----------
@@ -143,6 +142,21 @@ def slow_state_noise(
         tuning.correction_time_constant_s
     )
 
+    # rotational gusts: first-order Gauss-Markov processes of the MIL-F-8785C sigmas and the
+    # time constants of JSBSim's generator (Yeager eqs. 9, 13, 17: L_p / V, 4 b / (pi V), 3 b /
+    # (pi V))
+    span = params.geometry.b_m
+    level = TURBULENCE_LEVELS[tuning.design_turbulence]
+    if level.w20_mps > 0.0:
+        l_w = milspec_scale_lengths_m(tuning.design_height_m)[2]
+        speed = tuning.design_airspeed_mps
+        tau = np.array([math.sqrt(l_w * span) / 2.6 / speed, 4.0 * span / (math.pi * speed),
+                        3.0 * span / (math.pi * speed)])  # fmt: skip
+        sigma_g = rotational_gust_sigmas(tuning, span)
+        initial[GUST] = sigma_g
+        stationary[GUST] = sigma_g
+        decay[GUST] = 1.0 / tau
+
     # GPS receiver: its own Gauss-Markov model
     errors = GPS_ERROR
     driving = np.array([gps.north_east_sigma_m, gps.north_east_sigma_m, gps.height_sigma_m])
@@ -192,30 +206,3 @@ def rotational_gust_sigmas(tuning: FilterTuning, span_m: float) -> np.ndarray:
     sigma_q = math.sqrt(gradient_variance(sigma_w, l_w, 4.0))
     sigma_r = math.sqrt(gradient_variance(sigma_v, l_v, 3.0))
     return np.array([sigma_p, sigma_q, sigma_r])
-
-
-def gust_acceleration_cov(model: AeroModel, tuning: FilterTuning) -> np.ndarray:
-    """Covariance (6x6) of the specific force and angular acceleration the rotational gusts make.
-
-    The gust rates enter the aerodynamics as air turning about the aircraft (the forces and
-    moments see ``omega - omega_g``); the model's own derivatives of the specific force and of
-    the angular acceleration with respect to the body rates, at straight-and-level trim at the
-    design airspeed, map :func:`rotational_gust_sigmas` into ``J diag(sigma_g^2) J'`` (rows:
-    ``u_dot, v_dot, w_dot, p_dot, q_dot, r_dot``). Zero in still air (``design_turbulence``
-    ``none``).
-    """
-    sigma_g = rotational_gust_sigmas(tuning, model.params.geometry.b_m)
-    x_trim, u_trim = model.trim(tuning.design_airspeed_mps)
-    inertia = model.params.mass.inertia_kgm2
-    mass = model.params.mass.mass_kg
-    step = 1e-3  # rad/s: the aerodynamics are linear in the rates at this size
-    jacobian = np.zeros((6, 3))
-    for axis in range(3):
-        states = np.stack([x_trim, x_trim], axis=1)
-        states[9 + axis, 0] += step
-        states[9 + axis, 1] -= step
-        fm = model.forces_moments(0.0, states, u_trim)
-        change = (fm[:, 0] - fm[:, 1]) / (2.0 * step)
-        jacobian[:3, axis] = change[:3] / mass
-        jacobian[3:, axis] = np.linalg.solve(inertia, change[3:])
-    return jacobian @ np.diag(sigma_g**2) @ jacobian.T
