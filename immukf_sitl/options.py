@@ -181,8 +181,9 @@ class FilterOptions:
             choices=FILTER_MODELS,
             default="paper",
             help="the aircraft model of ukf1/ukf2/imm: paper (12 states: still air, exact "
-            "sensors and airframe; default) or real-air (27 states: wind, gyro biases, force "
-            "and moment corrections, GPS error, with a sticky Markov chain of 1e-7 per step; "
+            "sensors and airframe; default) or real-air (30 states: wind, gyro biases, force "
+            "and moment corrections, rotational gusts, GPS error, with a sticky Markov chain of "
+            "1e-7 per step; "
             "README 'Real air')",
         )
         for flag, record, attribute, text in cls._NUMERIC:
@@ -282,7 +283,7 @@ class FilterOptions:
         return argv
 
 
-#: ``--filter-model`` choices: the paper's 12-state model, the 27-state real-air model.
+#: ``--filter-model`` choices: the paper's 12-state model, the 30-state real-air model.
 FILTER_MODELS = ("paper", "real-air")
 
 

@@ -464,11 +464,11 @@ def test_a_partial_runs_csv_gets_its_matrix_report(tmp_path: Path, capsys) -> No
 def test_shipped_real_air_campaigns_are_issue_9s_matrix() -> None:
     real = load_campaign(CAMPAIGNS / "real_air.yaml")
     runs = real.runs()
-    assert len(runs) == 3 * 3 * (7 + 1 + 1) and real.report == "matrix"
+    assert len(runs) == 4 * 3 * (7 + 1 + 1) and real.report == "matrix"
     assert {r.filter_model for r in runs} == {"real-air"}
     assert [a.name for a in real.air] == ["calm", "wind6-light", "wind10-moderate"]
     imm = [r for r in runs if r.variant == "imm"]
-    assert len(imm) == 63 and all(20 <= r.fault_t_s <= 80 for r in imm)
+    assert len(imm) == 84 and all(20 <= r.fault_t_s <= 80 for r in imm)
     assert {r.scenario.duration_s for r in runs} == {120.0}
     assert all(r.scenario.sensors.imu.bias_instability for r in runs)
     assert all(r.scenario.airframe.uncertainty.aero == 0.10 for r in runs)

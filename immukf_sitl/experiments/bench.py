@@ -285,7 +285,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description=(
             "Time one IMM-UKF step of the 7-mode bank over the Aerosonde model (100 Hz IMU, a "
             "GPS fix per 100 steps) in the augmented and additive forms, with the paper's "
-            "12-state model and the real-air 27-state one, and the same bank "
+            "12-state model and the real-air 30-state one, and the same bank "
             "built from filterpy's IMMEstimator for comparison. Prints medians and 99th "
             "percentiles in microseconds and the real-time margin at 100 Hz."
         ),
@@ -306,7 +306,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         choices=(*FILTER_MODELS, "both"),
         default="both",
         help=(
-            "the filter's model: the paper's 12 states, the real-air 27 states, or both, "
+            "the filter's model: the paper's 12 states, the real-air 30 states, or both, "
             "alternating, with their ratio (default both)"
         ),
     )

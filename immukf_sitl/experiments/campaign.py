@@ -21,7 +21,7 @@ A wrong file gets one line naming the file, the field and what was expected
                                    # or {uniform: [20, 80]}: one time per (replicate, air entry,
                                    # fault set), drawn from the seed (see "Random fault times")
     filter_model: paper            # optional axis: paper (FilterTuning(), 12 states) | real-air
-                                   # (FilterTuning.real_air(), 27 states), or a list of both
+                                   # (FilterTuning.real_air(), 30 states), or a list of both
     report: paper                  # optional: paper (Tables 1-3 beside the paper's) | matrix
                                    # (issue 9's measurement: identification within 1 s, false
                                    # declarations per hour, attitude IMM/UKF-2, per air)
@@ -81,7 +81,7 @@ from immukf_sitl.service.filters import VARIANTS
 
 LOOPS = ("closed", "open")
 FAULT_SET_NAMES = ("all_64", "single")
-#: ``filter_model`` values (as ``--filter-model``): the paper's 12-state model, the 27-state one
+#: ``filter_model`` values (as ``--filter-model``): the paper's 12-state model, the 30-state one
 FILTER_MODELS = ("paper", "real-air")
 #: ``report`` values: the paper's tables, or issue 9's matrix measurement
 REPORT_KINDS = ("paper", "matrix")

@@ -436,7 +436,7 @@ def air_relative(
     cps: Value,
     xa: np.ndarray,
 ) -> None:
-    """``x`` made relative to the air moving at ``e[0:3]`` (NED) and turning at ``e[12:15]``.
+    """``x`` made relative to the air moving at ``e[0:3]`` (NED) and turning at ``e[9:12]``.
 
     The forces and moments depend on the velocity through the air, ``v_a = v_g - R_bn w``
     (B&M eq. 2.5), and on the rates relative to the air, ``omega - omega_g`` (the rotational
