@@ -635,6 +635,15 @@ def _bitwise_equal(p: float, q: float) -> bool:
     return p == q and math.copysign(1.0, p) == math.copysign(1.0, q)
 
 
+@_kernel
+def _column_repeats(a: np.ndarray, rows: int, j: int, first: int) -> bool:
+    """Whether column ``j``'s first ``rows`` entries are bitwise column ``first``'s."""
+    for i in range(rows):
+        if not _bitwise_equal(a[i, j], a[i, first]):
+            return False
+    return True
+
+
 @numba.njit(cache=True, error_model="numpy")
 def step_batch(
     x: np.ndarray,
@@ -663,15 +672,13 @@ def step_batch(
     n_reused = 0
     for j in range(x.shape[1]):
         first = j - j % period
-        same = first != j
-        for i in range(12):
-            same = same and _bitwise_equal(x[i, j], x[i, first])
-        for i in range(N_DYNAMIC_EXTRA):
-            same = same and _bitwise_equal(e[i, j], e[i, first])
-        for i in range(6):
-            same = same and _bitwise_equal(v[i, j], v[i, first])
-        for i in range(4):
-            same = same and _bitwise_equal(u[i, j], u[i, first])
+        same = (
+            first != j
+            and _column_repeats(x, 12, j, first)
+            and _column_repeats(e, N_DYNAMIC_EXTRA, j, first)
+            and _column_repeats(v, 6, j, first)
+            and _column_repeats(u, 4, j, first)
+        )
         if same:
             for i in range(12):
                 out[i, j] = out[i, first]
@@ -733,13 +740,12 @@ def imu_batch(
     n_reused = 0
     for j in range(x.shape[1]):
         first = j - j % period
-        same = first != j
-        for i in range(12):
-            same = same and _bitwise_equal(x[i, j], x[i, first])
-        for i in range(N_OUTPUT_EXTRA):
-            same = same and _bitwise_equal(e[i, j], e[i, first])
-        for i in range(4):
-            same = same and _bitwise_equal(u[i, j], u[i, first])
+        same = (
+            first != j
+            and _column_repeats(x, 12, j, first)
+            and _column_repeats(e, N_OUTPUT_EXTRA, j, first)
+            and _column_repeats(u, 4, j, first)
+        )
         if same:
             for i in range(6):
                 out[i, j] = out[i, first]
