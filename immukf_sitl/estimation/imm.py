@@ -18,7 +18,7 @@ import numpy as np
 from immukf_sitl.estimation.angles import angle_mask
 from immukf_sitl.estimation.diagnostics import FilterDiagnostics
 from immukf_sitl.estimation.fault_modes import ObservabilityGate
-from immukf_sitl.estimation.models import Measurement
+from immukf_sitl.estimation.models import Measurement, ProcessModel
 from immukf_sitl.estimation.ukf import UnscentedKalmanFilter
 
 
@@ -59,6 +59,8 @@ class ImmEstimate:
         Mode-matched normalised innovation squared.
     updated : bool
         Whether a measurement was used.
+    innovation_var : ndarray or None, shape (r, nz)
+        Variances of the innovations (the diagonals of ``P_zz``), None on a predict-only step.
     """
 
     t_s: float
@@ -72,6 +74,7 @@ class ImmEstimate:
     innovations: np.ndarray | None
     nis: np.ndarray
     updated: bool
+    innovation_var: np.ndarray | None = None
 
     @property
     def most_likely_mode(self) -> int:
@@ -170,6 +173,7 @@ class ImmEstimator:
         t_next_s: float,
         u: np.ndarray,
         measurement: Measurement | None,
+        process: ProcessModel | None = None,
     ) -> ImmEstimate:
         """One IMM cycle from ``previous`` (time ``k``) to ``k+1`` with control ``u``.
 
@@ -184,6 +188,9 @@ class ImmEstimator:
             Control held over the step, passed to the models unchanged.
         measurement : Measurement or None
             ``z(k+1)``; ``None`` (or a non-finite ``z``) gives a predict-only step.
+        process : ProcessModel, optional
+            This step's process model, when its noise adapts (see
+            :meth:`UnscentedKalmanFilter.step`); default the filters' own.
 
         Returns
         -------
@@ -209,7 +216,7 @@ class ImmEstimator:
         )  # eqs. (6)-(8)
 
         prior = self.ukf.initial_estimate(previous.t_s, mixed_mean, mixed_cov)
-        filtered = self.ukf.step(prior, t_next_s, u, measurement)  # eqs. (9)-(25)
+        filtered = self.ukf.step(prior, t_next_s, u, measurement, process)  # eqs. (9)-(25)
 
         log_likelihood = filtered.log_likelihood
         if self.evidence is not None and filtered.updated:
@@ -238,4 +245,7 @@ class ImmEstimator:
             filtered.innovation,
             filtered.nis,
             filtered.updated,
+            None
+            if filtered.innovation_cov is None
+            else np.diagonal(filtered.innovation_cov, axis1=1, axis2=2).copy(),
         )

@@ -220,6 +220,7 @@ class UnscentedKalmanFilter:
         t_next_s: float,
         u: np.ndarray,
         measurement: Measurement | None,
+        process: ProcessModel | None = None,
     ) -> UkfEstimate:
         """Predict from ``k`` to ``k+1`` with control ``u``, then update with ``measurement``.
 
@@ -235,6 +236,10 @@ class UnscentedKalmanFilter:
             Control held over the step, passed to ``f`` and ``g`` unchanged.
         measurement : Measurement or None
             ``z(k+1)``; ``None`` (or a non-finite ``z``) gives a predict-only step.
+        process : ProcessModel, optional
+            The process model of this step, when its noise differs from the filter's (an
+            adaptive noise level); it must have the filter's ``f``, dimensions, angles and
+            consider states. Default: the filter's own.
 
         Returns
         -------
@@ -249,8 +254,9 @@ class UnscentedKalmanFilter:
         mean = np.ascontiguousarray(previous.mean, dtype=float)
         cov = np.ascontiguousarray(previous.cov, dtype=float)
         batch = mean.shape[0]
+        proc = self.process if process is None else process
         sym, weights, x_points, pred_mean, pred_cov, x_res = self._predict(
-            previous.t_s, mean, cov, u, measurement
+            proc, previous.t_s, mean, cov, u, measurement
         )
         if measurement is None:
             zero = np.zeros(batch)
@@ -258,11 +264,13 @@ class UnscentedKalmanFilter:
                 t_next_s, pred_mean, pred_cov, pred_mean, pred_cov, None, None, zero, zero, False
             )
         return self._update(
-            t_next_s, u, measurement, mean, sym, weights, x_points, pred_mean, pred_cov, x_res
-        )
+            proc, t_next_s, u, measurement, mean, sym, weights, x_points, pred_mean, pred_cov,
+            x_res,
+        )  # fmt: skip
 
     def _predict(
         self,
+        proc: ProcessModel,
         t_s: float,
         mean: np.ndarray,
         cov: np.ndarray,
@@ -276,7 +284,6 @@ class UnscentedKalmanFilter:
         """
         kern = self.kernels
         diag = self.diagnostics
-        proc = self.process
         batch, nx = mean.shape
 
         # P(k|k) symmetrised and factored; a factor the kernel doubts goes to the repairs
@@ -326,6 +333,7 @@ class UnscentedKalmanFilter:
 
     def _update(
         self,
+        proc: ProcessModel,
         t_next_s: float,
         u: np.ndarray,
         measurement: Measurement,
@@ -340,7 +348,6 @@ class UnscentedKalmanFilter:
         """Eqs. (15), (17), (19)-(25): the measurement update and the likelihood."""
         kern = self.kernels
         diag = self.diagnostics
-        proc = self.process
         augmented = self.noise_form == "augmented"
         batch, nx = pred_mean.shape
         model = measurement.model

@@ -58,6 +58,7 @@ from immukf_sitl.models.sensors import IMU_PERIOD_S, SensorSpec
 from immukf_sitl.service.alignment import NavSolution
 from immukf_sitl.service.noise_model import SlowStateNoise, slow_state_noise
 from immukf_sitl.service.tuning import FilterTuning
+from immukf_sitl.service.turbulence import TurbulenceAdapter, TurbulenceEstimate
 
 Variant = Literal["ukf1", "ukf2", "ukf3", "imm"]
 VARIANTS: tuple[str, ...] = ("ukf1", "ukf2", "ukf3", "imm")
@@ -213,12 +214,16 @@ class VariantEstimate:
     imu : ndarray, shape (6,)
         The IMU sample at ``t_s``; the INS keeps the last finite one, which it integrates over
         the next step.
+    turbulence : TurbulenceEstimate or None
+        The air's roughness learnt so far (the real-air model), the scale the next step's
+        turbulence noise is drawn at; None for a model without turbulence states.
     """
 
     t_s: float
     filter: ImmEstimate
     controls: np.ndarray
     imu: np.ndarray
+    turbulence: TurbulenceEstimate | None = None
 
     @property
     def mode_probabilities(self) -> np.ndarray:
@@ -261,7 +266,11 @@ class _Bank:
         probs = self.prior_probabilities() if mode_probabilities is None else mode_probabilities
         bank = self.imm.initial_estimate(t_s, mean, cov, probs)
         imu = np.zeros(6) if imu is None else np.array(imu, dtype=float)
-        return VariantEstimate(t_s, bank, np.array(controls, dtype=float), imu)
+        adapts = getattr(self, "turbulence", None) is not None
+        return VariantEstimate(
+            t_s, bank, np.array(controls, dtype=float), imu,
+            TurbulenceEstimate() if adapts else None,
+        )  # fmt: skip
 
     def restart_from_fault_free(self, estimate: VariantEstimate) -> VariantEstimate:
         """Re-seed every mode from the most probable one, keeping the mode probabilities.
@@ -307,6 +316,7 @@ class AircraftEstimator(_Bank):
     imu_model: MeasurementModel
     imu_gps_model: MeasurementModel
     noise: SlowStateNoise | None
+    turbulence: TurbulenceAdapter | None = None
 
     def initial_estimate(
         self,
@@ -376,8 +386,18 @@ class AircraftEstimator(_Bank):
             z = Measurement(np.concatenate([imu, gps]), self.imu_gps_model)
         controls = np.asarray(controls, dtype=float)
         pair = np.array([previous.controls, controls])  # u(k), u(k+1)
-        bank = self.imm.step(previous.filter, t_next_s, pair, z)
-        return VariantEstimate(t_next_s, bank, controls, imu)  # the IMU drives nothing here
+        adapter, rough = self.turbulence, previous.turbulence
+        if adapter is None or rough is None:
+            bank = self.imm.step(previous.filter, t_next_s, pair, z)
+            return VariantEstimate(t_next_s, bank, controls, imu)  # the IMU drives nothing here
+        bank = self.imm.step(previous.filter, t_next_s, pair, z, adapter.process_at(rough.scale))
+        if bank.updated and bank.innovations is not None and bank.innovation_var is not None:
+            lead = bank.most_likely_mode
+            rough = adapter.update(
+                rough, bank.innovations[lead, :6], bank.innovation_var[lead, :6],
+                self.modes[lead].healthy_mask != 0.0,
+            )  # fmt: skip
+        return VariantEstimate(t_next_s, bank, controls, imu, rough)
 
     def navigation(self, estimate: VariantEstimate) -> NavSolution:
         """The combined estimate as a navigation solution."""
@@ -482,7 +502,14 @@ def build_aero_estimator(
         gate = ObservabilityGate(modes, own_imu, noise_var, tuning.observability_sigmas)
     imm = ImmEstimator(ukf, transition, floor, gate)
     imu_model, imu_gps_model = aero_measurement_models(flown, modes, sensors)
-    return AircraftEstimator(variant, tuple(modes), imm, imu_model, imu_gps_model, noise)
+    adapter = None
+    if noise is not None and tuning.adaptive_turbulence:
+        turbulence_idx = [N_RIGID + i for g in (WIND, GUST) for i in range(g.start, g.stop)]
+        adapter = TurbulenceAdapter(
+            process, turbulence_idx, np.diagonal(sensors.imu.noise_cov()), flown.dt_s,
+            tuning.turbulence_averaging_s, floor=tuning.turbulence_floor,
+        )  # fmt: skip
+    return AircraftEstimator(variant, tuple(modes), imm, imu_model, imu_gps_model, noise, adapter)
 
 
 @dataclass(frozen=True, eq=False)

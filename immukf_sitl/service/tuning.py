@@ -46,6 +46,11 @@ class FilterTuning:
     estimated error absorbed every vertical model error (the position drifted 100 m while the
     error state, 10 sigma off its own prior, held the difference).
 
+    ``adaptive_turbulence`` (real-air model only): the design air is the roughest the filter
+    holds in, not the air it flies in; the turbulence states' noise is scaled in flight to the
+    air the innovations show, between ``turbulence_floor`` and 1 times the design's sigmas,
+    averaged over ``turbulence_averaging_s`` (:mod:`immukf_sitl.service.turbulence`).
+
     The paper model's chain is asymmetric on purpose. ``onset_probability`` is the chance per
     step that the fault-free system develops a given fault; ``recovery_probability`` the chance
     per step that a faulty mode hands back to fault-free. Whatever edge an unobservable fault
@@ -76,6 +81,9 @@ class FilterTuning:
     observability_sigmas: float = 3.0
     sigma_point_alpha: float | None = None
     consider_states: tuple[str, ...] = ()
+    adaptive_turbulence: bool = True
+    turbulence_floor: float = 0.1
+    turbulence_averaging_s: float = 10.0
 
     def __post_init__(self) -> None:
         if self.design_turbulence not in TURBULENCE_LEVELS:
@@ -88,10 +96,13 @@ class FilterTuning:
             "design_airspeed_mps": self.design_airspeed_mps,
             "correction_time_constant_s": self.correction_time_constant_s,
             "initial_wind_sigma_mps": self.initial_wind_sigma_mps,
+            "turbulence_averaging_s": self.turbulence_averaging_s,
         }
         for name, value in positive.items():
             if not value > 0.0:
                 raise ValueError(f"{name}: expected > 0, got {value}")
+        if not 0.0 < self.turbulence_floor <= 1.0:
+            raise ValueError(f"turbulence_floor: expected in (0, 1], got {self.turbulence_floor}")
 
     @classmethod
     def real_air(cls, **changes: object) -> FilterTuning:
