@@ -431,6 +431,26 @@ def test_matrix_summary_on_a_hand_made_run_set() -> None:
     assert "| 1.50 |" in text and "**not met**" in text
 
 
+def test_matrix_attitude_pairs_the_variants_of_one_flight_only() -> None:
+    """Open loop the variants estimate the same flight, closed each flies its own: the IMM/UKF-2
+    ratio pairs rows of one loop, and the report says which comparison it is."""
+    from immukf_sitl.experiments.campaign_report import matrix_markdown, matrix_summary
+
+    def flight(loop: str, imm_mse: str, ukf2_mse: str) -> list[dict[str, str]]:
+        return [
+            _row(variant="imm", fault="none", loop=loop, est_att_mse_deg2=imm_mse),
+            _row(variant="ukf2", fault="none", loop=loop, est_att_mse_deg2=ukf2_mse),
+        ]
+
+    both = matrix_summary(flight("closed", "3.0", "2.0") + flight("open", "2.0", "2.0"))
+    ratios = {f["loop"]: f["imm_over_ukf2_mse"] for f in both["real-air"]["flights"]}
+    assert ratios == {"closed": pytest.approx(1.5), "open": pytest.approx(1.0)}
+    same = matrix_summary(flight("open", "2.2", "2.0"))
+    assert same["real-air"]["done_when"]["attitude_within_1_2x_of_ukf2"] is True
+    assert "the very same flight" in matrix_markdown(same)
+    assert "its own closed loop" in matrix_markdown(matrix_summary(flight("closed", "1", "1")))
+
+
 def test_a_partial_runs_csv_gets_its_matrix_report(tmp_path: Path, capsys) -> None:
     import yaml
 

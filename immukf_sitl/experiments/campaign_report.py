@@ -522,14 +522,19 @@ def _false_declarations(imm: Sequence[Row]) -> dict[str, object]:
 
 
 def _attitude_flights(rows: Sequence[Row]) -> list[dict[str, object]]:
-    """Per fault-free flight (air, replicate): the IMM's, UKF-2's and UKF-3's attitude error."""
-    cells: dict[tuple[str, str], dict[str, Row]] = {}
+    """Per fault-free flight (air, loop, replicate): the IMM's, UKF-2's and UKF-3's attitude error.
+
+    Open loop (the autopilot on truth), the variants estimate the very same flight; closed, each
+    flies its own from the first turn on.
+    """
+    cells: dict[tuple[str, str, str], dict[str, Row]] = {}
     for row in rows:
         if row["fault"] == "none" and row["variant"] in ("imm", "ukf2", "ukf3"):
-            cells.setdefault((row["air"], row["replicate"]), {})[row["variant"]] = row
+            key = (row["air"], row.get("loop") or "closed", row["replicate"])
+            cells.setdefault(key, {})[row["variant"]] = row
     out = []
-    for (air, replicate), by in cells.items():
-        flight: dict[str, object] = {"air": air, "replicate": int(replicate)}
+    for (air, loop, replicate), by in cells.items():
+        flight: dict[str, object] = {"air": air, "loop": loop, "replicate": int(replicate)}
         for variant in ("imm", "ukf2", "ukf3"):
             row = by.get(variant)
             flight[f"{variant}_att_max_deg"] = _number(
@@ -699,19 +704,27 @@ def matrix_markdown(summary: dict[str, object]) -> str:
                 f"{_n(f['per_hour'], '.1f')} | {f['runs_with_declarations']}/{f['runs']} | "
                 f"{modes} |"
             )
+        loops = {f["loop"] for f in data["flights"]}
+        flown = (
+            "the autopilot flies on truth, so the variants estimate the very same flight"
+            if loops == {"open"}
+            else "each variant flies its own closed loop on the same airframe, air and noise"
+            if loops == {"closed"}
+            else "open loop: the very same flight; closed: each variant its own"
+        )
         lines.append(
-            "\n**Attitude estimate error on the fault-free flights** (deg, deg²; each variant "
-            "flies its own closed loop on the same airframe, air and noise; the mean rows give "
+            f"\n**Attitude estimate error on the fault-free flights** (deg, deg²; {flown}; "
+            "the mean rows give "
             "the largest max, the mean MSE, and the IMM/UKF-2 ratio of the MSE summed over the "
             "flights both flew, with the worst ratio of a flight whose UKF-2 stayed stable; a "
             "critical run's errors cover "
             "its flight up to the failure, so its ratio compares unequal windows):\n"
         )
         lines.append(
-            "| air | replicate | IMM max | UKF-2 max | UKF-3 max | IMM MSE | UKF-2 MSE | "
+            "| air | loop | replicate | IMM max | UKF-2 max | UKF-3 max | IMM MSE | UKF-2 MSE | "
             "UKF-3 MSE | IMM/UKF-2 MSE |"
         )
-        lines.append("|---|---|---|---|---|---|---|---|---|")
+        lines.append("|---|---|---|---|---|---|---|---|---|---|")
         for f in data["flights"]:
 
             def flag(variant: str, flight: dict = f) -> str:
@@ -719,7 +732,8 @@ def matrix_markdown(summary: dict[str, object]) -> str:
                 return "" if status in ("stable", None) else f" ({status})"
 
             lines.append(
-                f"| {f['air']} | {f['replicate']} | {_n(f['imm_att_max_deg'])}{flag('imm')} | "
+                f"| {f['air']} | {f['loop']} | {f['replicate']} | "
+                f"{_n(f['imm_att_max_deg'])}{flag('imm')} | "
                 f"{_n(f['ukf2_att_max_deg'])}{flag('ukf2')} | "
                 f"{_n(f['ukf3_att_max_deg'])}{flag('ukf3')} | "
                 f"{_n(f['imm_att_mse_deg2'])} | {_n(f['ukf2_att_mse_deg2'])} | "
@@ -728,7 +742,7 @@ def matrix_markdown(summary: dict[str, object]) -> str:
         for air, g in groups:
             a = g["attitude"]
             lines.append(
-                f"| {air} | mean | {_n(a['imm_att_max_deg_max'])} (max) | "
+                f"| {air} | | mean | {_n(a['imm_att_max_deg_max'])} (max) | "
                 f"{_n(a['ukf2_att_max_deg_max'])} (max) | {_n(a['ukf3_att_max_deg_max'])} (max) | "
                 f"{_n(a['imm_att_mse_deg2_mean'])} | {_n(a['ukf2_att_mse_deg2_mean'])} | "
                 f"{_n(a['ukf3_att_mse_deg2_mean'])} | {_n(a['imm_over_ukf2_mse_of_means'], '.2f')} "
