@@ -59,6 +59,29 @@ def test_switching_directly_to_another_fault_clears_the_first():
     ]
 
 
+def test_a_dead_declared_channel_is_not_replaced_by_another_mode():
+    """While the declared q gyro reads zero plus noise, an r mode that leads is not declared in
+    its place; once q has read beyond 5 sigma three times (alive), the switch goes ahead."""
+    rng = np.random.default_rng(5)
+    det = FaultDetector(MODES, DetectorConfig(dwell_s=0.0, settle_s=0.0, zero_window=5), 0.0)
+    p_q, p_r = np.zeros(7), np.zeros(7)
+    p_q[5], p_r[6] = 0.95, 0.97
+    reading = _imu(rng, 0.0) * [1, 1, 1, 1, 0, 0]  # q and r both read zero plus nothing
+    events = det.update(0.0, p_q, reading, SIGMAS)
+    for k in range(1, 50):  # r leads, q still dead
+        events += det.update(k * 0.01, p_r, reading, SIGMAS)
+    assert [(e.kind, e.mode.name) for e in events] == [("detected", "q")]
+    alive = reading + [0, 0, 0, 0, 10 * SIGMAS[4], 0]
+    for k in range(50, 53):  # q shows life three times
+        events += det.update(k * 0.01, p_r, alive, SIGMAS)
+    events += det.update(0.53, p_r, reading, SIGMAS)
+    assert [(e.kind, e.mode.name) for e in events] == [
+        ("detected", "q"),
+        ("cleared", "q"),
+        ("detected", "r"),
+    ]
+
+
 def test_bad_thresholds_are_rejected():
     with pytest.raises(ValueError, match="clear_threshold <= threshold"):
         DetectorConfig(threshold=0.5, clear_threshold=0.8)

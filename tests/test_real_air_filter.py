@@ -413,3 +413,23 @@ def test_a_zero_of_the_other_sign_is_a_different_input(trimmed) -> None:
     x[4, 1] = 0.0
     assert aero_kernels.step_batch(*args, 2, out) == 1
     assert aero_kernels.imu_batch(x, u, args[3], aero._k, 2, z) == 1
+
+
+def test_start_up_probabilities_believe_the_imu_healthy(params) -> None:
+    """The paper's chain starts at its stationary distribution, ``onset / recovery`` per fault
+    mode against fault-free (its balance equations); the real-air chain is symmetric, whose
+    stationary distribution (1/7 each) would believe a sensor dead at power-on 6 times in 7, so
+    every fault mode starts at the onset probability instead."""
+    from immukf_sitl.service.filters import build_aero_estimator
+
+    aero = AeroModel(params)
+    x0, u0 = aero.trim(25.0)
+    paper = build_aero_estimator("imm", aero, tuning=FilterTuning())
+    probs = paper.start(0.0, x0, np.eye(12) * 1e-4, u0).mode_probabilities
+    np.testing.assert_allclose(probs[1:] / probs[0], 1e-4 / 0.25, rtol=1e-9)
+    real = build_aero_estimator("imm", aero, tuning=FilterTuning.real_air())
+    mean, cov = real.augmented(x0, np.eye(12) * 1e-4)
+    probs = real.start(0.0, mean, cov, u0).mode_probabilities
+    np.testing.assert_allclose(probs[1:] / probs[0], 1e-7, rtol=1e-12)
+    with pytest.raises(ValueError, match="initial_fault_probability"):
+        FilterTuning.real_air(initial_fault_probability=0.5)

@@ -14,8 +14,9 @@ when its probability stays below ``clear_threshold`` for ``clear_dwell_s`` *and*
 channels have shown they are alive: at least ``alive_samples`` readings more than
 ``alive_sigmas`` noise sigmas from zero since the declaration. A zeroed sensor reads zero plus
 its noise, beyond 5 sigma once in about 1.7 million samples (4.8 h at 100 Hz), so a sensor that
-stays dead is never cleared, whatever the probabilities do while it cannot be told from a
-healthy one (a y accelerometer in coordinated flight, a q gyro on a straight leg). Nothing is
+stays dead is never cleared, nor replaced by another mode's declaration, whatever the
+probabilities do while it cannot be told from a healthy one (a y accelerometer in coordinated
+flight, a q gyro on a straight leg). Nothing is
 declared during the first ``settle_s`` after the estimator starts (its covariances are still
 converging from the initial alignment).
 """
@@ -163,10 +164,10 @@ class FaultDetector:
                 self._above_since.setdefault(j, t_s)
             else:
                 self._above_since.pop(j, None)
+        alive = imu_sigmas is None or self._alive >= cfg.alive_samples
         if self.declared is not None:
             j = self.modes.index(self.declared)
             p = float(probabilities[j])
-            alive = imu_sigmas is None or self._alive >= cfg.alive_samples
             if p < cfg.clear_threshold:
                 if self._below_since is None:
                     self._below_since = t_s
@@ -177,6 +178,10 @@ class FaultDetector:
             else:
                 self._below_since = None
         if t_s - self.start_s < cfg.settle_s:
+            return events
+        if self.declared is not None and not alive:
+            # a declared channel that has not read beyond its noise is still dead: no other
+            # single fault replaces it (a dead q gyro on a straight leg let a y mode lead)
             return events
         for j, since in sorted(self._above_since.items(), key=lambda kv: -probabilities[kv[0]]):
             mode = self.modes[j]

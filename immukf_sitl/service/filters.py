@@ -244,7 +244,16 @@ class _Bank:
         return self.imm.diagnostics
 
     def prior_probabilities(self) -> np.ndarray:
-        """Mode probabilities to start from: the Markov chain's stationary distribution."""
+        """Mode probabilities to start from.
+
+        ``initial_fault_probability`` per fault mode when the variant sets one, else the
+        Markov chain's stationary distribution (the paper's chain: about ``onset / recovery``,
+        4e-4, per fault mode).
+        """
+        p_fault = getattr(self, "initial_fault_probability", None)
+        if p_fault is not None and len(self.modes) > 1:
+            probs = np.array([1.0 if m.bits == 0 else p_fault for m in self.modes])
+            return probs / probs.sum()
         eigval, eigvec = np.linalg.eig(self.imm.transition.T)
         stationary = np.real(eigvec[:, np.argmin(np.abs(eigval - 1.0))])
         return stationary / stationary.sum()
@@ -272,21 +281,25 @@ class _Bank:
             TurbulenceEstimate() if adapts else None,
         )  # fmt: skip
 
-    def restart_from_fault_free(self, estimate: VariantEstimate) -> VariantEstimate:
-        """Re-seed every mode from the most probable one, keeping the mode probabilities.
+    def restart_from_fault_free(
+        self, estimate: VariantEstimate, mode_probabilities: np.ndarray | None = None
+    ) -> VariantEstimate:
+        """Re-seed every mode from the most probable one.
 
         The paper initialises the mode-matched filters from the fault-free UKF's steady state
         (section 2.A); the service runs the bank through a settling period and then calls this.
         The seed is the filter of the most probable mode, fault-free unless the bank already
-        believes a channel failed: a channel the IMM calls failed is not trusted for it. A bank
-        of one mode (UKF-1, UKF-2, UKF-3) has nothing to re-seed.
+        believes a channel failed: a channel the IMM calls failed is not trusted for it. The
+        modes restart at ``mode_probabilities`` (default: they keep theirs). A bank of one mode
+        (UKF-1, UKF-2, UKF-3) has nothing to re-seed.
         """
         if len(self.modes) == 1:
             return estimate
         bank = estimate.filter
         seed = bank.most_likely_mode
+        probs = bank.mode_probabilities if mode_probabilities is None else mode_probabilities
         restarted = self.imm.initial_estimate(
-            bank.t_s, bank.mode_means[seed], bank.mode_covs[seed], bank.mode_probabilities
+            bank.t_s, bank.mode_means[seed], bank.mode_covs[seed], probs
         )
         return dataclasses.replace(estimate, filter=restarted)
 
@@ -317,6 +330,7 @@ class AircraftEstimator(_Bank):
     imu_gps_model: MeasurementModel
     noise: SlowStateNoise | None
     turbulence: TurbulenceAdapter | None = None
+    initial_fault_probability: float | None = None
 
     def initial_estimate(
         self,
@@ -509,7 +523,10 @@ def build_aero_estimator(
             process, turbulence_idx, np.diagonal(sensors.imu.noise_cov()), flown.dt_s,
             tuning.turbulence_averaging_s, floor=tuning.turbulence_floor,
         )  # fmt: skip
-    return AircraftEstimator(variant, tuple(modes), imm, imu_model, imu_gps_model, noise, adapter)
+    return AircraftEstimator(
+        variant, tuple(modes), imm, imu_model, imu_gps_model, noise, adapter,
+        tuning.initial_fault_probability,
+    )  # fmt: skip
 
 
 @dataclass(frozen=True, eq=False)

@@ -440,7 +440,12 @@ class EstimatorPipeline:
         start = time.perf_counter()
         est = self.estimator.step(self.estimate, t_s, self._controls, Observation(imu, gps))
         if self._restart_at_s is not None and t_s >= self._restart_at_s:
-            est = self.estimator.restart_from_fault_free(est)
+            # the odds the modes took while the filters converged from the alignment measure
+            # that convergence (S >> R), not the sensors: they restart at the prior (what the
+            # detector declared stays believed); the seed still distrusts the leading mode's
+            # failed channels
+            probs = self.estimator.probabilities_believing(self.detector.declared)
+            est = self.estimator.restart_from_fault_free(est, probs)
             self._restart_at_s = None
         self.estimate = est
         step_us = (time.perf_counter() - start) * 1e6
