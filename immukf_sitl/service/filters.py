@@ -20,6 +20,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Literal
 
 import numpy as np
@@ -332,6 +333,11 @@ class AircraftEstimator(_Bank):
     turbulence: TurbulenceAdapter | None = None
     initial_fault_probability: float | None = None
 
+    @cached_property
+    def _healthy_masks(self) -> np.ndarray:
+        """``(r, 6)``: 1 on the channels each mode takes as healthy."""
+        return np.array([m.healthy_mask for m in self.modes], dtype=float)
+
     def initial_estimate(
         self,
         nav: NavSolution,
@@ -409,7 +415,7 @@ class AircraftEstimator(_Bank):
             lead = bank.most_likely_mode
             rough = adapter.update(
                 rough, bank.innovations[lead, :6], bank.innovation_var[lead, :6],
-                self.modes[lead].healthy_mask != 0.0,
+                self._healthy_masks[lead],
             )  # fmt: skip
         return VariantEstimate(t_next_s, bank, controls, imu, rough)
 

@@ -32,7 +32,9 @@ import dataclasses
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from functools import cached_property
 
+import numba
 import numpy as np
 
 from immukf_sitl.estimation import ProcessModel
@@ -41,6 +43,28 @@ __all__ = ["TurbulenceAdapter", "TurbulenceEstimate"]
 
 #: an innovation beyond this many sigmas counts as this many (one outlier is not the air)
 _CLIP_SIGMAS = 5.0
+
+
+@numba.njit(cache=True)
+def _fold(
+    excess: np.ndarray, predicted: np.ndarray, weight: np.ndarray, nu: np.ndarray,
+    s: np.ndarray, r: np.ndarray, trusted: np.ndarray, alpha: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:  # fmt: skip
+    """One step into the exponential averages of ``nu^2 - R``, ``S - R`` and the weight."""
+    n = excess.shape[0]
+    for i in range(n):
+        if not (math.isfinite(nu[i]) and math.isfinite(s[i])):
+            return None
+    new_excess = np.empty(n)
+    new_predicted = np.empty(n)
+    new_weight = np.empty(n)
+    for i in range(n):
+        g = alpha * trusted[i]
+        nu2 = min(nu[i] * nu[i], _CLIP_SIGMAS * _CLIP_SIGMAS * s[i])
+        new_excess[i] = excess[i] + g * (nu2 - r[i] - excess[i])
+        new_predicted[i] = predicted[i] + g * (s[i] - r[i] - predicted[i])
+        new_weight[i] = weight[i] + g * (1.0 - weight[i])
+    return new_excess, new_predicted, new_weight
 
 
 @dataclass(frozen=True)
@@ -110,12 +134,12 @@ class TurbulenceAdapter:
         object.__setattr__(self, "turbulence_idx", tuple(int(i) for i in self.turbulence_idx))
         object.__setattr__(self, "noise_var", np.asarray(self.noise_var, dtype=float))
 
-    @property
+    @cached_property
     def _alpha(self) -> float:
         """Weight of one step in the exponential averages."""
         return -math.expm1(-self.dt_s / self.averaging_s)
 
-    @property
+    @cached_property
     def _period_steps(self) -> int:
         return max(1, round(self.period_s / self.dt_s))
 
@@ -134,31 +158,36 @@ class TurbulenceAdapter:
             The state before this step.
         innovation, innovation_var : ndarray, shape (6,)
             The leading mode's IMU innovations and their variances (diagonal of ``S``).
-        trusted : ndarray of bool, shape (6,)
-            The channels that mode takes as healthy (a failed channel's ``S`` is ``R``: it
-            says nothing of the air).
+        trusted : ndarray, shape (6,)
+            1 (or True) on the channels that mode takes as healthy, 0 on its failed ones (a
+            failed channel's ``S`` is ``R``: it says nothing of the air).
         """
-        r = self.noise_var
-        s = np.asarray(innovation_var, dtype=float)
-        nu2 = np.minimum(np.square(innovation), _CLIP_SIGMAS**2 * s)
-        use = np.asarray(trusted, dtype=bool) & np.isfinite(nu2) & (s > 0.0)
-        a = self._alpha
-        gain = np.where(use, a, 0.0)
-        excess = estimate.excess + gain * (np.where(use, nu2 - r, 0.0) - estimate.excess)
-        predicted = estimate.predicted + gain * (np.where(use, s - r, 0.0) - estimate.predicted)
-        weight = estimate.weight + gain * (1.0 - estimate.weight)
+        averages = _fold(
+            estimate.excess, estimate.predicted, estimate.weight,
+            np.asarray(innovation, dtype=float), np.asarray(innovation_var, dtype=float),
+            self.noise_var, np.asarray(trusted, dtype=float), self._alpha,
+        )  # fmt: skip
+        if averages is None:
+            return estimate  # a filter reset this step: nothing to learn from
+        excess, predicted, weight = averages
         steps = estimate.steps + 1
         scale = estimate.scale
         if steps >= self._period_steps:
             steps = 0
-            ready = (weight > 1.0 - 1.0 / math.e) & (predicted > 0.0)
-            if np.any(ready):
-                ratio = float(np.median(np.maximum(excess[ready], 0.0) / predicted[ready]))
-                ratio = min(max(ratio, math.exp(-4.0)), math.exp(4.0))
-                gain_update = self.period_s / self.averaging_s
-                scale2 = scale * scale * ratio**gain_update
-                scale = min(max(math.sqrt(scale2), self.floor), 1.0)
+            scale = self._rescaled(scale, excess, predicted, weight)
         return TurbulenceEstimate(scale, excess, predicted, weight, steps)
+
+    def _rescaled(
+        self, scale: float, excess: np.ndarray, predicted: np.ndarray, weight: np.ndarray
+    ) -> float:
+        """The scale moved toward consistency by the median channel's excess ratio."""
+        ready = (weight > 1.0 - 1.0 / math.e) & (predicted > 0.0)
+        if not np.any(ready):
+            return scale
+        ratio = float(np.median(np.maximum(excess[ready], 0.0) / predicted[ready]))
+        ratio = min(max(ratio, math.exp(-4.0)), math.exp(4.0))
+        scale2 = scale * scale * ratio ** (self.period_s / self.averaging_s)
+        return min(max(math.sqrt(scale2), self.floor), 1.0)
 
     def process_at(self, scale: float) -> ProcessModel:
         """The process model with the turbulence states' driving noise at ``scale`` (sigmas)."""
