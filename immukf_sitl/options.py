@@ -59,7 +59,7 @@ def add_signing_argument(parser: argparse.ArgumentParser) -> None:
         metavar="FILE",
         default=None,
         help="sign everything sent and accept only correctly signed MAVLink 2 input, with the "
-        "32-byte key held in FILE as 64 hex characters (README 'Security'; default: no signing)",
+        "32-byte key held in FILE as 64 hex characters (docs/security.md; default: no signing)",
     )
 
 
@@ -156,7 +156,7 @@ class FilterOptions:
             "tuning",
             "recovery_probability",
             "per-step Markov probability fault -> fault-free; --filter-model real-air: 1e-7 "
-            "(README 'Detection and tuning')",
+            "(docs/design/detection-and-tuning.md)",
         ),
     )
 
@@ -184,7 +184,7 @@ class FilterOptions:
             "sensors and airframe; default) or real-air (30 states: wind, gyro biases, force "
             "and moment corrections, rotational gusts, GPS error, with a sticky Markov chain of "
             "1e-7 per step; "
-            "README 'Real air')",
+            "docs/design/real-air-model.md)",
         )
         for flag, record, attribute, text in cls._NUMERIC:
             default = getattr(defaults[record], attribute)
@@ -387,7 +387,7 @@ class RunOptions:
             dest="signing_key_path",
             metavar="FILE",
             default=None,
-            help="like --sign, with the key in FILE (64 hex characters; README 'Security')",
+            help="like --sign, with the key in FILE (64 hex characters; docs/security.md)",
         )
         FilterOptions.add_arguments(parser)
 

@@ -1,7 +1,7 @@
 """Scenario files: a flight, its sensors and a schedule of injected faults (YAML).
 
 A wrong file gets one line naming the file, the field and what was expected
-(:class:`ScenarioError`). The schema, with every default (README "Scenario files" shows it too)::
+(:class:`ScenarioError`). The schema, with every default (docs/scenarios.md shows it too)::
 
     name: q-gyro-zeroed            # required, a label
     description: ...               # optional

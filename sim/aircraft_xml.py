@@ -11,8 +11,8 @@ The aerodynamics are the equations of the filter's model (Beard & McLain, *Small
 Aircraft*, 2012, ch. 4, with the supplement's propeller), written as JSBSim functions:
 
 - lift ``C_L(alpha)`` with the stall blending of B&M eq. (4.9)-(4.10), plus ``C_L_q c q/(2 Va)``
-  and ``C_L_delta_e delta_e``; drag LINEAR in alpha, ``C_D_0 + C_D_alpha alpha`` (DESIGN.md
-  section 6), plus the q and delta_e terms; both in ``frame="STABILITY"`` (drag and lift
+  and ``C_L_delta_e delta_e``; drag LINEAR in alpha, ``C_D_0 + C_D_alpha alpha`` (as the
+  filter's model), plus the q and delta_e terms; both in ``frame="STABILITY"`` (drag and lift
   positive, rotated by alpha only, as the book's eq. (4.19)), side force on the body y axis;
 - rolling, pitching and yawing moments about the body axes at the CG (``AERORP`` = CG), the
   p, q, r terms normalised by ``b/(2 Va)`` and ``c/(2 Va)`` (JSBSim's ``aero/bi2vel`` and
@@ -24,7 +24,7 @@ Aircraft*, 2012, ch. 4, with the supplement's propeller), written as JSBSim func
   ``fcs/delta-a-rad``, ``fcs/delta-r-rad``), no actuator lag; ``fcs/throttle-cmd-norm`` clipped to
   [0, 1] gives ``fcs/delta-t``.
 
-JSBSim facts this relies on (DESIGN.md section 6): the product of inertia is written with
+JSBSim facts this relies on (each checked by the tests): the product of inertia is written with
 ``negated_crossproduct_inertia="false"`` and the value such that the body inertia tensor is the
 book's ``[[Jx, 0, -Jxz], [0, Jy, 0], [-Jxz, 0, Jz]]`` (verified numerically by
 ``tests/test_model_vs_jsbsim.py``); the EYEPOINT is at the IMU so that ``a-pilot`` is measured
@@ -432,7 +432,7 @@ def _metrics(g: Geometry) -> list[str]:
 def _mass_balance(m: MassProperties) -> list[str]:
     return [
         '  <!-- negated_crossproduct_inertia="false" with +Jxz gives the body tensor\n',
-        "       [[Jx, 0, -Jxz], [0, Jy, 0], [-Jxz, 0, Jz]] of the book (DESIGN.md sec. 6). -->\n",
+        "       [[Jx, 0, -Jxz], [0, Jy, 0], [-Jxz, 0, Jz]] of the book. -->\n",
         '  <mass_balance negated_crossproduct_inertia="false">\n',
         f'    <ixx unit="KG*M2">{_num(m.Jx_kgm2)}</ixx>\n',
         f'    <iyy unit="KG*M2">{_num(m.Jy_kgm2)}</iyy>\n',

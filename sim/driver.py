@@ -6,7 +6,8 @@ One :class:`JsbsimDriver` owns one ``jsbsim.FGFDMExec`` running the project's ow
 allows and returns one immutable :class:`TruthState` per step.
 
 Timing of one step (JSBSim runs Propagate first, then the FCS, aerodynamics and accelerations;
-DESIGN.md section 6): :meth:`JsbsimDriver.step` sets the controls, calls ``run()`` once, and the
+found when the aircraft was built): :meth:`JsbsimDriver.step` sets the controls, calls
+``run()`` once, and the
 returned record holds the state ``x(t)`` at the new time together with the forces evaluated at
 ``x(t)`` with those controls. Those forces drive the integration from ``x(t)`` to ``x(t + dt)``
 in the next step, so a record's ``controls`` and ``specific_force`` belong to the interval that
@@ -14,7 +15,7 @@ starts at its time — the ``x(k+1) = f(x(k), u(k))`` convention of the filter.
 
 The specific force is built from ``forces/fb{x,y,z}-total-lbs`` of the current step divided by
 the mass (these forces exclude gravity: aerodynamics and propeller only), never from
-``accelerations/a-pilot-*``, which lags one step (DESIGN.md section 6). With the IMU at the CG
+``accelerations/a-pilot-*``, which lags one step. With the IMU at the CG
 (the parameter file's ``imu_position_m`` is zero) that is exactly what an ideal accelerometer
 reads; a non-zero lever arm adds ``omega_dot x r + omega x (omega x r)``.
 

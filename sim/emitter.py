@@ -20,7 +20,7 @@ stream and merges this log with the fault proxy's. The annotation and the truth 
 component :data:`TRUTH_COMPONENT_ID` with their own sequence numbers, so the stream of
 component 1 has no sequence gaps, in the log or on the wire.
 
-Pacing (DESIGN.md section 4; the split px4-jsbsim-bridge and ArduPilot's SIM_JSBSim use):
+Pacing (the split px4-jsbsim-bridge and ArduPilot's SIM_JSBSim use):
 
 - **lock-step** (default): the estimator replies on its input link one SYSTEM_TIME
   (``time_unix_usec`` 0, ``time_boot_ms`` = time of the last HIGHRES_IMU it processed) per

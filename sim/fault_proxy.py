@@ -23,7 +23,7 @@ stream). A frame that fails the check (unsigned, wrong signature, replayed) is n
 nor re-signed: it is forwarded as it came, and the estimator rejects it.
 
 Fault kinds, from ``t_s`` until ``end_t_s`` (or the end), on each of the fault's channels
-(DESIGN.md section 5, the paper's fault is ``zero``):
+(the paper's fault is ``zero``):
 
 - ``zero``: 0 plus that sensor's white noise (``scenario.sensors.imu`` sigma): a dead sensor
   that still reports;

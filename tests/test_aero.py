@@ -71,7 +71,7 @@ def test_trim_is_a_fixed_point(model: AeroModel, va_mps: float, gamma_rad: float
     assert np.linalg.norm(x0[3:6]) == pytest.approx(va_mps, rel=1e-12)
     assert -xd[2] == pytest.approx(va_mps * np.sin(gamma_rad), abs=1e-8)
     assert x0[6] == 0.0  # wings level
-    # the supplement's propeller needs a high trim throttle (DESIGN.md section 6)
+    # the supplement's propeller needs a high trim throttle
     assert 0.55 < u0[3] < 1.0
     assert u0[0] < 0.0  # trailing edge up to hold the nose up
     # one RK4 step keeps it (up to the ISA density change with the climb)
@@ -273,7 +273,7 @@ def test_propeller_matches_the_advance_ratio_form(params) -> None:
         thrust, torque = propeller_thrust_torque(va, dt, rho, params)
         assert thrust == pytest.approx(rho * n**2 * d**4 * c_t, rel=1e-9)
         assert torque == pytest.approx(rho * n**2 * d**5 * c_q, rel=1e-9)
-    # DESIGN.md section 6: thrust changes sign near delta_t = 0.67 at 25 m/s
+    # the supplement's propeller: thrust changes sign near delta_t = 0.67 at 25 m/s
     thrust, _ = propeller_thrust_torque(25.0, np.array([0.6, 0.74]), 1.225, prop)
     assert thrust[0] < 0.0 < thrust[1]
 

@@ -249,7 +249,7 @@ def test_progress_line_counts_and_estimates_the_rest() -> None:
     assert stream.getvalue().startswith("experiment: [")
 
 
-# -- issue 9's matrix: filter models, drawn fault times, airframe draws, its metrics -----------
+# -- the real-air matrix: filter models, drawn fault times, airframe draws, its metrics -----------
 
 
 def matrix_campaign(**changes: object):
@@ -473,7 +473,7 @@ def test_a_partial_runs_csv_gets_its_matrix_report(tmp_path: Path, capsys) -> No
     assert campaign_report.main([str(path), str(tmp_path)]) == 0
     assert capsys.readouterr().out.strip().endswith(f"1 of {len(runs)} runs")
     report = (tmp_path / "report.md").read_text()
-    assert "issue 9's measurement" in report and "| calm | 1 | 1 | 100 % |" in report
+    assert "the real-air matrix" in report and "| calm | 1 | 1 | 100 % |" in report
     assert (tmp_path / "delays.png").stat().st_size > 0
     matrix = json.loads((tmp_path / "matrix.json").read_text())
     assert matrix["real-air"]["overall"]["false_declarations"]["hours"] == pytest.approx(

@@ -74,7 +74,7 @@ def test_isa_density() -> None:
     assert isa_density_kgpm3(0.0) == pytest.approx(1.225, abs=1e-12)
     # U.S. Standard Atmosphere 1976 table: 1000 m 1.1117, 5000 m 0.73643 kg/m^3
     np.testing.assert_allclose(isa_density_kgpm3([1000.0, 5000.0]), [1.1117, 0.73643], rtol=2e-4)
-    # DESIGN.md: JSBSim's standard atmosphere gives 1.213 at 100 m
+    # JSBSim's standard atmosphere gives 1.213 at 100 m
     assert isa_density_kgpm3(100.0) == pytest.approx(1.213, abs=1e-3)
     with pytest.raises(ValueError, match="troposphere"):
         isa_density_kgpm3(12000.0)

@@ -1,4 +1,4 @@
-"""Issue 9: the rotational gusts of the design turbulence as states of the real-air model."""
+"""The rotational gusts of the design turbulence as states of the real-air model."""
 
 from __future__ import annotations
 

@@ -34,7 +34,7 @@ def test_packaged_file_loads_with_design_values() -> None:
     p = load_aircraft_params()
     assert isinstance(p, AircraftParams)
     assert p.source.endswith("params.yaml")
-    # DESIGN.md section 6 values that public copies disagree on
+    # values that public copies disagree on
     assert p.mass.mass_kg == 11.0
     assert p.aero.C_D_0 == 0.043
     assert p.aero.C_D_alpha == 0.030

@@ -1,4 +1,4 @@
-"""Issue 9: the filter model of a real aircraft, its noise, the gate, the latch, the alignment."""
+"""The filter model of a real aircraft, its noise, the gate, the latch, the alignment."""
 
 from __future__ import annotations
 

@@ -55,7 +55,8 @@ def test_fault_free_flight_declares_nothing(replays):
     _, result, summary = replays["fault_free"]
     assert summary["detections"] == [] and summary["false_alarms"] == 0
     # margin: after settling, no fault mode stays above 0.5 for even half the 0.2 s dwell
-    # (brief spikes happen where a channel's true value crosses zero, see README "Tuning")
+    # (brief spikes happen where a channel's true value crosses zero, see
+    # docs/design/detection-and-tuning.md)
     longest = run = 0
     for o in result.history.outputs:
         run = run + 1 if o.t_s > 3.5 and o.mode_probabilities[1:].max() > 0.5 else 0

@@ -27,7 +27,8 @@ def test_trim_is_steady_level_flight_within_the_limits(driver):
     assert trim.residual_angular_accel_radps2 < 1e-8
     assert np.all(trim.controls >= params.actuators.lower_limits)
     assert np.all(trim.controls <= params.actuators.upper_limits)
-    # Thrust is negative below delta_t ~ 0.67 at 25 m/s (DESIGN.md), so trim throttle is high.
+    # Thrust is negative below delta_t ~ 0.67 at 25 m/s (the supplement's propeller), so trim
+    # throttle is high.
     assert 0.67 < trim.controls[3] < 0.95
     assert 0.0 < trim.alpha_rad < 0.15
     # The propeller's reaction torque is balanced by a small aileron deflection.
@@ -105,7 +106,7 @@ def test_rates_are_inertial(driver):
 
 
 def test_specific_force_is_this_steps_and_a_pilot_lags_one_step(driver):
-    """fb-total / mass excludes gravity and belongs to the current step (DESIGN.md, 6)."""
+    """fb-total / mass excludes gravity and belongs to the current step (a-pilot lags one)."""
     driver.reset()
     trim = driver.trim_result.controls
     forces, pilots = [], []

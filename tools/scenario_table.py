@@ -4,7 +4,7 @@
 
 Each row is one ``immukf-sitl run SCENARIO --json`` (lock-step, seeded): the fault, when it
 became observable and was detected, the false declarations, the attitude and position errors
-and the filter's step time. README's tables are made with it; progress goes to stderr.
+and the filter's step time. README's results tables are made with it; progress goes to stderr.
 """
 
 from __future__ import annotations

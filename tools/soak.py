@@ -15,7 +15,7 @@ tlogs), follows the estimator's output like a ground station, and samples the re
 It fails (exit status 1) when any process grew by 5 % or more after the warm-up, or when a
 counter moved that a clean flight never moves (drops, gaps, bad packets, rejections,
 re-alignments, restarts, send errors, proxy errors). Not a unit test: it takes 35-55 minutes
-of wall time on a 2-core machine. README "Soak" holds the measured figures.
+of wall time on a 2-core machine. docs/performance.md holds the measured figures.
 """
 
 from __future__ import annotations

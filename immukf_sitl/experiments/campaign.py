@@ -23,14 +23,14 @@ A wrong file gets one line naming the file, the field and what was expected
     filter_model: paper            # optional axis: paper (FilterTuning(), 12 states) | real-air
                                    # (FilterTuning.real_air(), 30 states), or a list of both
     report: paper                  # optional: paper (Tables 1-3 beside the paper's) | matrix
-                                   # (issue 9's measurement: identification within 1 s, false
+                                   # (the real-air matrix: identification within 1 s, false
                                    # declarations per hour, attitude IMM/UKF-2, per air)
     loop: [closed]                 # optional axis: closed (autopilot on the estimate) | open
                                    # (on truth)
     air:                           # optional axis (default one entry: the scenario's own air)
       - {name: still}              # name, then optional airframe: and wind: blocks as in a
       - {name: windy, wind: {speed_mps: 6, from_deg: 270, turbulence: light}}  # scenario file
-    failure:                       # optional: the critical-failure criterion (docs/report.md)
+    failure:                       # optional: the critical-failure criterion
       lateral_m: 100               # true aircraft farther than this from the desired path
       vertical_m: 30               # true height this far from the commanded altitude
       ground_alt_m: 0              # true height above the ellipsoid below this: ground hit
@@ -83,7 +83,7 @@ LOOPS = ("closed", "open")
 FAULT_SET_NAMES = ("all_64", "single")
 #: ``filter_model`` values (as ``--filter-model``): the paper's 12-state model, the 30-state one
 FILTER_MODELS = ("paper", "real-air")
-#: ``report`` values: the paper's tables, or issue 9's matrix measurement
+#: ``report`` values: the paper's tables, or the real-air matrix
 REPORT_KINDS = ("paper", "matrix")
 #: first element of the spawn key of the fault-time draws (apart from the replicates' ``(r,)``)
 FAULT_TIME_STREAM = 0xFA17
@@ -104,7 +104,7 @@ class CampaignError(UserError):
 
 @dataclass(frozen=True)
 class FailureCriterion:
-    """When a run is a critical failure (the paper's Table 2 "x"); see docs/report.md."""
+    """When a run is a critical failure (the paper's Table 2 "x"; docs/results/paper/report.md)."""
 
     lateral_m: float = 100.0
     vertical_m: float = 30.0

@@ -36,7 +36,7 @@ from immukf_sitl.experiments.metrics import (
 from immukf_sitl.service.pipeline import PipelineConfig
 from immukf_sitl.service.tuning import FilterTuning
 
-#: The columns of ``runs.csv``, in order (docs/report.md defines each).
+#: The columns of ``runs.csv``, in order (docs/results/paper/report.md defines each).
 COLUMNS: tuple[str, ...] = (
     "index",
     "run_id",

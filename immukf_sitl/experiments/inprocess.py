@@ -1,6 +1,6 @@
 """The sim -> fault proxy -> estimator chain in one process, without sockets; open or closed loop.
 
-The same objects the three UDP processes wrap (DESIGN.md section 1): the JSBSim
+The same objects the three UDP processes wrap (docs/design/architecture.md): the JSBSim
 :class:`~sim.flight.Flight`, the proxy's :class:`~sim.fault_proxy.FaultInjector` and the
 :class:`~immukf_sitl.service.pipeline.EstimatorPipeline`, stepped together. Experiments and tuning
 studies use it; the summary is the one ``run`` and ``replay`` print.

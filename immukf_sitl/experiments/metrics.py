@@ -1,6 +1,6 @@
 """Per-run metrics of a campaign, as the paper defines them, and the critical-failure criterion.
 
-Definitions (docs/report.md repeats them for readers of the tables):
+Definitions (docs/results/paper/report.md repeats them for readers of the tables):
 
 - **Window.** Every error counts from the end of the settling period after the filter's first
   estimate (3 s by default, the pipeline's ``settle_s``) to the end of the flight.
@@ -18,14 +18,14 @@ Definitions (docs/report.md repeats them for readers of the tables):
   truth, or no estimate for more than a second: the pipeline dropped a diverged one). A run
   with none of them is *stable* ("maintain flight").
 - **IMM figures**: the detection delay counts from the later of the fault and the moment it
-  became observable (README "What to expect in steady flight"); a run *identifies* its fault
-  when the first declaration at or after the fault names the true mode (a fault-free run: no
-  declaration at all); false declarations are those of a mode other than the active one.
-- **Fault-free exposure** (issue 9's false declarations per hour): the time a run flies with
-  healthy sensors and the detector listening, from the end of the settling period after the
-  first estimate to the fault (the end of the flight, for a fault-free run, or where a critical
-  failure stopped it). Its false declarations are the declarations inside that window (any
-  declaration there is false: no channel is dead yet). :func:`false_declaration_rate` pools
+  became observable (docs/scenarios.md, "What to expect in steady flight"); a run *identifies*
+  its fault when the first declaration at or after the fault names the true mode (a fault-free
+  run: no declaration at all); false declarations are those of a mode other than the active one.
+- **Fault-free exposure** (the denominator of the false declarations per hour): the time a run
+  flies with healthy sensors and the detector listening, from the end of the settling period
+  after the first estimate to the fault (the end of the flight, for a fault-free run, or where a
+  critical failure stopped it). Its false declarations are the declarations inside that window
+  (any declaration there is false: no channel is dead yet). :func:`false_declaration_rate` pools
   them over runs.
 """
 

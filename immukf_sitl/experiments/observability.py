@@ -4,7 +4,7 @@ A zeroed channel reads what a healthy one would while the true value is within t
 noise of zero: a zeroed q gyro in steady level flight, or a zeroed y accelerometer in
 coordinated flight, is invisible. Detection delay is therefore measured from the later of the
 fault's start and the first time the true channel leaves a band of ``n_sigma`` standard
-deviations of that sensor's white noise around zero (issue 4, DESIGN.md section 3).
+deviations of that sensor's white noise around zero.
 
 The same rule covers every fault kind through the deviation it causes, faulted minus healthy
 reading (noise aside): ``zero`` ``-truth``, ``stuck`` ``held - truth``, ``bias`` ``value`` and
@@ -33,7 +33,7 @@ __all__ = [
     "first_observable_time_s",
 ]
 
-#: Width of the band around zero, in standard deviations of the sensor noise (issue 4).
+#: Width of the band around zero, in standard deviations of the sensor noise.
 DEFAULT_N_SIGMA = 5.0
 
 

@@ -3,7 +3,7 @@
 Inputs are plain arrays and records, so that ``run`` (which reads the tlogs the processes wrote)
 and ``replay`` (which runs the pipeline itself) give the same summary for the same flight.
 
-Definitions (README "Reading a summary"):
+Definitions (README, "Quick start"):
 
 - ``observable_t_s``: the first time at or after a fault's start at which the faulted channel
   differs from a healthy one by more than 5 sigma of its sensor noise (a zeroed q gyro in

@@ -161,7 +161,7 @@ def _group_summary(n: int, group: Sequence, rows: Sequence[Row]) -> str:
 
 
 def summary_json(name: str, rows: Sequence[Row], wall_s: float) -> dict[str, object]:
-    """The ``--json`` object (README "Results" lists the keys)."""
+    """The ``--json`` object (README, "Results")."""
     variants: dict[str, object] = {}
     for variant in ("ukf1", "ukf2", "ukf3", "imm"):
         mine = [r for r in rows if r["variant"] == variant and r["status"] != "error"]

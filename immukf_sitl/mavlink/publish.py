@@ -1,4 +1,4 @@
-"""Outbound messages of the estimator service (DESIGN.md section 5).
+"""Outbound messages of the estimator service (README, "The wire").
 
 Builds ATTITUDE, ATTITUDE_QUATERNION, GLOBAL_POSITION_INT, NAMED_VALUE_FLOAT (one per mode
 probability), NAMED_VALUE_INT ``IMM_FAULT`` (the declared fault mode's bits at each detection or

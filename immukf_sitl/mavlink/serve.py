@@ -564,7 +564,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         default=None,
         metavar="PRIO",
         help="run under SCHED_FIFO at PRIO (1-99; Linux, needs CAP_SYS_NICE): the filter step "
-        "preempts ordinary processes as flight software's would (README 'Latency')",
+        "preempts ordinary processes as flight software's would (docs/performance.md)",
     )
     add_signing_argument(parser)
     add_json_argument(parser, "the statistics at exit")

@@ -1,6 +1,6 @@
 """MAVLink 2 signing of the project's links (``--signing-key FILE``), with pymavlink's own code.
 
-The key is a file holding the 32-byte secret as 64 hexadecimal characters (README, "Security").
+The key is a file holding the 32-byte secret as 64 hexadecimal characters (docs/security.md).
 Signing and checking are pymavlink's (``mavfile.setup_signing``, ``MAVLink.check_signature``,
 ``MAVLink_message.sign_packet``): this module writes no HMAC. What it adds:
 

@@ -1,7 +1,7 @@
 """Streaming tlog writer: frames recorded as they are sent or heard (``--tlog`` options).
 
 A tlog is a sequence of records: an 8-byte big-endian UNIX time in microseconds, then one raw
-MAVLink frame (DESIGN.md section 7; :mod:`immukf_sitl.mavlink.flightlog` reads them and
+MAVLink frame (:mod:`immukf_sitl.mavlink.flightlog` reads them and
 batch-writes them).
 The project's processes stamp records with **sim time** (seconds since the start of the flight,
 so the stamps start at the UNIX epoch): the tlogs of one run then merge by record time, and a

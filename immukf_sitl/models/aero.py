@@ -8,7 +8,7 @@ flies (``sim/aircraft_xml.py`` renders it from the same parameter file):
 - lift with the stall blending of eq. 4.9: ``C_L = (1 - sigma) (C_L_0 + C_L_alpha alpha)
   + sigma 2 sign(alpha) sin^2(alpha) cos(alpha)``, ``sigma`` of eq. 4.10 with ``M`` and
   ``alpha0``;
-- **linear** drag ``C_D = C_D_0 + C_D_alpha alpha`` (DESIGN.md section 6: with this coefficient
+- **linear** drag ``C_D = C_D_0 + C_D_alpha alpha`` (with this coefficient
   set the parabolic ``C_D_p + C_L^2 / (pi e AR)`` would leave only induced drag);
 - lift and drag in stability axes rotated to body by alpha (eq. 4.18); side force and moments
   in body axes (eqs. 4.14, 4.15, 4.19);
@@ -80,7 +80,7 @@ def lift_coefficient(alpha_rad: ArrayLike, aero: AeroCoefficients) -> np.ndarray
 
 
 def drag_coefficient(alpha_rad: ArrayLike, aero: AeroCoefficients) -> np.ndarray:
-    """Static drag coefficient, the linear law C_D = C_D_0 + C_D_alpha alpha (DESIGN.md s. 6)."""
+    """Static drag coefficient, the linear law C_D = C_D_0 + C_D_alpha alpha."""
     return kernels.uncompiled.drag_coefficient(
         np.asarray(alpha_rad, dtype=float), aero.C_D_0, aero.C_D_alpha
     )

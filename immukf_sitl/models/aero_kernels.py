@@ -269,7 +269,7 @@ def lift_coefficient(
 
 @_kernel
 def drag_coefficient(alpha: Value, c_d_0: float, c_d_alpha: float) -> Value:
-    """Static drag coefficient, linear in alpha (DESIGN.md section 6)."""
+    """Static drag coefficient, linear in alpha (the truth aircraft uses the same law)."""
     return c_d_0 + c_d_alpha * alpha
 
 

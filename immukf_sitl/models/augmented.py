@@ -2,7 +2,7 @@
 
 A real aircraft flies in moving air, its IMU has biases, its GPS receiver wanders and its
 coefficients are not the book's. The paper's model knows none of these, and a filter built on
-it blames every such difference on a sensor (README, "Real air"). In the spirit of
+it blames every such difference on a sensor (docs/design/real-air-model.md). In the spirit of
 vehicle-dynamic-model navigation (Mwenegoha et al., J. Navigation 74(6), 2021: wind and
 parameter uncertainty as states) and of every autopilot EKF (ArduPilot EKF3, PX4 EKF2: wind
 and IMU biases as states), the state grows by 18 slowly varying quantities:

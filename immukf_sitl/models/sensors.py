@@ -2,7 +2,7 @@
 
 One source of truth for the scenario parser (the user's ``sensors:`` block), the simulation's
 sensor models (``sim/sensors.py``) and the filter's measurement noise ``R``. Defaults are those of
-Beard & McLain, *Small Unmanned Aircraft*, 2012, ch. 7 (DESIGN.md section 6):
+Beard & McLain, *Small Unmanned Aircraft*, 2012, ch. 7:
 
 - accelerometers: white noise 0.0025 g = 0.0245 m/s^2; rate gyros 0.13 deg/s = 0.00227 rad/s;
   both at the IMU rate (100 Hz);

@@ -35,7 +35,7 @@ from immukf_sitl.estimation.fault_modes import FaultMode
 
 @dataclass(frozen=True)
 class DetectorConfig:
-    """Decision thresholds (defaults documented in README "Detection")."""
+    """Decision thresholds (docs/design/detection-and-tuning.md says why each)."""
 
     threshold: float = 0.9
     dwell_s: float = 0.2

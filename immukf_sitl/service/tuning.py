@@ -37,7 +37,7 @@ class FilterTuning:
     accounted for, their mean never estimated.
 
     ``slow_states`` chooses the model: False is the paper's (the 12 rigid-body states, still
-    air, exact sensors and airframe), True the real-air model of issue 9 (15 more states: wind,
+    air, exact sensors and airframe), True the real-air model (18 more states: wind,
     gyro biases, force and moment corrections, GPS error; :mod:`immukf_sitl.models.augmented`),
     which also scores a failed channel only while it is observable
     (:class:`~immukf_sitl.estimation.fault_modes.ObservabilityGate`). :meth:`real_air` is that

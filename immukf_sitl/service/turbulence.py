@@ -23,7 +23,7 @@ healthy mode cannot explain, moves the estimate by one rank at most.
 
 The floor keeps the wind learnable. With no driving noise at all (``k = 0``, a design for
 still air), the filter lost the wind and its position in calm air within 10 s. The ceiling is
-the design air: the filter is not built for rougher air (README, "The real-air model").
+the design air: the filter is not built for rougher air (docs/design/real-air-model.md).
 """
 
 from __future__ import annotations
