@@ -13,6 +13,9 @@ from immukf_sitl.service.pipeline import PipelineConfig
 from sim.autopilot import NavigationState
 from sim.flight import Flight
 
+# flies JSBSim or the estimator chain
+pytestmark = pytest.mark.slow
+
 PLAN = {
     "waypoints": [
         {"north_m": 110, "east_m": 0, "alt_m": 150},

@@ -20,6 +20,7 @@ def test_every_subcommand_has_help(capsys):
         assert len(capsys.readouterr().out) > 200, name
 
 
+@pytest.mark.slow
 def test_bench_json_has_the_promised_fields():
     out = subprocess.run(
         [

@@ -29,6 +29,9 @@ from immukf_sitl.mavlink.wire import (
     open_tlog_reader,
 )
 
+# flies JSBSim or the estimator chain
+pytestmark = pytest.mark.slow
+
 SCENARIO = REPO / "scenarios" / "q_gyro_zeroed.yaml"
 DURATION_S = 36.0
 FAULT_T_S = 30.0

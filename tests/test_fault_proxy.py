@@ -228,6 +228,7 @@ def recv_all(sock: socket.socket, count: int, timeout_s: float) -> list[bytes]:
     return out
 
 
+@pytest.mark.slow
 def test_proxy_over_udp_faults_only_imu_after_t_s_and_forwards_replies(tmp_path):
     scenario = scenario_file(tmp_path, 1.0)
     estimator = DatagramSink()
@@ -298,6 +299,7 @@ def test_proxy_over_udp_faults_only_imu_after_t_s_and_forwards_replies(tmp_path)
     assert "stopped by SIGTERM" in err and "modified 101 HIGHRES_IMU" in err
 
 
+@pytest.mark.slow
 def test_lockstep_chain_through_the_proxy(tmp_path):
     """sim (lock-step) -> proxy -> estimator stand-in: acknowledgements flow back through the
     proxy, every step arrives in order, q is zeroed from t_s and nothing else changes."""
@@ -327,6 +329,7 @@ def test_lockstep_chain_through_the_proxy(tmp_path):
     print(f"lock-step through the proxy: {summary['steps_per_s']:.0f} steps/s")
 
 
+@pytest.mark.slow
 def test_chain_imu_matches_the_flight_except_the_faulted_channel(tmp_path):
     """The q values the estimator stand-in received in the chain are noise after t_s; the
     other channels are the in-process flight's (checked on a captured stream)."""

@@ -26,6 +26,9 @@ from immukf_sitl.mavlink.wire import SIM_COMPONENT_ID, mavlink, open_tlog_reader
 from immukf_sitl.options import FilterOptions
 from immukf_sitl.samples import ImuSample
 
+# flies JSBSim or the estimator chain
+pytestmark = pytest.mark.slow
+
 FLIGHT = Path(__file__).resolve().parent / "data" / "fault_free.tlog"
 FLIGHT_S = 20.0
 #: disturbances go into the first 14 s: a clock jump makes the service start over, and it

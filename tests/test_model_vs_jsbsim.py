@@ -15,6 +15,9 @@ from sim.driver import JsbsimDriver
 from sim.flight import fly
 from sim.flight_plans import default_flight_plan
 
+# flies JSBSim or the estimator chain
+pytestmark = pytest.mark.slow
+
 LBF_N = 4.4482216152605
 FT = 0.3048
 SLUG_FT3_KG_M3 = 515.378818

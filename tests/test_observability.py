@@ -17,6 +17,9 @@ from immukf_sitl.models.sensors import ImuSpec
 from immukf_sitl.scenario import FaultSpec, load_scenario
 from sim.scenario_flight import flight_from_scenario
 
+# flies JSBSim or the estimator chain
+pytestmark = pytest.mark.slow
+
 SCENARIO_DIR = Path(__file__).resolve().parents[1] / "scenarios"
 #: The shipped flights must make each fault observable this soon after it starts (s).
 MAX_OBSERVABILITY_DELAY_S = 1.0

@@ -14,6 +14,9 @@ from immukf_sitl.models.params import load_aircraft_params
 from immukf_sitl.samples import ActuatorSample, GpsSample, ImuSample
 from immukf_sitl.service.pipeline import ACTUATOR_TIME_WRAP_S, EstimatorPipeline, LocalGeodetic
 
+# flies JSBSim or the estimator chain
+pytestmark = pytest.mark.slow
+
 DATA = Path(__file__).parent / "data"
 
 

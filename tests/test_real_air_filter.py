@@ -287,6 +287,7 @@ def test_body_to_ned_is_scipys_zyx_rotation() -> None:
         np.testing.assert_allclose(body_to_ned(euler), expected, atol=1e-15)
 
 
+@pytest.mark.slow
 def test_perturbed_airframe_in_wind_flies_without_a_declaration() -> None:
     """The real-air filter on a drawn airframe, 6 m/s wind, light turbulence and a biased MEMS
     IMU (scenarios/fault_free_windy.yaml, 25 s): no fault declared, attitude held, and the

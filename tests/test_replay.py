@@ -13,6 +13,9 @@ from immukf_sitl.mavlink.flightlog import read_flight_log
 from immukf_sitl.models.params import load_aircraft_params
 from immukf_sitl.service.pipeline import EstimatorPipeline, PipelineConfig
 
+# flies JSBSim or the estimator chain
+pytestmark = pytest.mark.slow
+
 DATA = Path(__file__).parent / "data"
 
 

@@ -7,6 +7,9 @@ import pytest
 from immukf_sitl.experiments.inprocess import run_inprocess
 from immukf_sitl.scenario import load_scenario
 
+# flies JSBSim or the estimator chain
+pytestmark = pytest.mark.slow
+
 SCENARIOS = Path(__file__).resolve().parents[1] / "scenarios"
 
 

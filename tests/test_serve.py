@@ -16,6 +16,9 @@ from immukf_sitl.samples import ActuatorSample, GpsSample, ImuSample
 from sim.flight import fly
 from sim.flight_plans import default_flight_plan
 
+# flies JSBSim or the estimator chain
+pytestmark = pytest.mark.slow
+
 FAULT_AT_S = 5.0
 DURATION_S = 8.0
 

@@ -346,6 +346,7 @@ def test_forged_and_replayed_frames_change_nothing_in_the_estimate(signed_run, t
     np.testing.assert_array_equal(mine.euler_rad, reference.euler_rad[:n])
 
 
+@pytest.mark.slow
 def test_key_file_is_not_world_readable_after_run_sign(signed_run) -> None:
     out, _ = signed_run
     assert stat.S_IMODE(os.stat(out / "signing.key").st_mode) == 0o600

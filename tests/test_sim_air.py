@@ -35,6 +35,9 @@ from sim.scenario_flight import flight_from_scenario
 from sim.sensors import ImuModel
 from sim.truth import TruthState
 
+# flies JSBSim or the estimator chain
+pytestmark = pytest.mark.slow
+
 REPO = Path(__file__).resolve().parents[1]
 BASE = yaml.safe_load((REPO / "scenarios" / "fault_free.yaml").read_text())
 

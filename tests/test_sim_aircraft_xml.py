@@ -54,6 +54,7 @@ def test_torque_reaction_can_be_switched_off():
     assert 'name="propeller-torque"' not in render_aircraft_xml(no_torque)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("airspeed_mps", [15.0, 25.0, 35.0])
 def test_jsbsim_thrust_and_torque_equal_the_python_reference(airspeed_mps):
     params = load_aircraft_params()
@@ -78,6 +79,7 @@ def test_jsbsim_thrust_and_torque_equal_the_python_reference(airspeed_mps):
         assert roll_nm == pytest.approx(-torque, rel=1e-6, abs=1e-6)
 
 
+@pytest.mark.slow
 def test_thrust_is_negative_at_low_throttle_and_positive_at_full():
     driver = JsbsimDriver(InitialConditions(airspeed_mps=25.0))
     driver.reset(controls=np.array([0.0, 0.0, 0.0, 0.5]), alpha_rad=0.0)

@@ -40,6 +40,7 @@ def test_wrap_angle():
     assert wrap_angle_rad(-3 * math.pi / 2) == pytest.approx(math.pi / 2)
 
 
+@pytest.mark.slow
 def test_navigation_from_a_state_vector_matches_the_truth():
     driver = JsbsimDriver()
     trim = driver.trim()

@@ -10,6 +10,9 @@ from immukf_sitl.models.params import load_aircraft_params
 from sim.driver import JsbsimDriver
 from sim.truth import InitialConditions, TruthState
 
+# flies JSBSim or the estimator chain
+pytestmark = pytest.mark.slow
+
 FT = 0.3048
 
 

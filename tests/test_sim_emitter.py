@@ -28,6 +28,9 @@ from immukf_sitl.scenario import load_scenario
 from sim.emitter import TRUTH_COMPONENT_ID, AckTimeout, LockStep, SimEmitter, StepEncoder
 from sim.scenario_flight import flight_from_scenario
 
+# flies JSBSim or the estimator chain
+pytestmark = pytest.mark.slow
+
 SCENARIO = Path(__file__).resolve().parents[1] / "scenarios" / "q_gyro_zeroed.yaml"
 SIM_S = 3.0
 STEPS = int(round(SIM_S / 0.01)) + 1  # step 0 .. 300

@@ -10,6 +10,9 @@ import pytest
 from sim.flight import Flight, fly
 from sim.flight_plans import default_flight_plan
 
+# flies JSBSim or the estimator chain
+pytestmark = pytest.mark.slow
+
 
 @pytest.fixture(scope="module")
 def flight_120s():

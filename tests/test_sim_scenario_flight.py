@@ -12,6 +12,9 @@ import pytest
 from immukf_sitl.scenario import ManoeuvreSpec, load_scenario
 from sim.scenario_flight import flight_from_scenario
 
+# flies JSBSim or the estimator chain
+pytestmark = pytest.mark.slow
+
 Y_SCENARIO = Path(__file__).resolve().parents[1] / "scenarios" / "y_accel_zeroed.yaml"
 
 

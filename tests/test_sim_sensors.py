@@ -15,6 +15,9 @@ from sim.driver import JsbsimDriver
 from sim.sensors import GpsModel, ImuModel
 from sim.truth import TruthState
 
+# flies JSBSim or the estimator chain
+pytestmark = pytest.mark.slow
+
 SEED = 20240611
 
 

@@ -126,6 +126,7 @@ def _scale_after(air: dict, seconds: float) -> float:
     return run.pipeline.estimate.turbulence.scale
 
 
+@pytest.mark.slow
 def test_the_filter_learns_calm_air_from_rough() -> None:
     """The real-air filter over JSBSim on a drawn airframe: in still air its turbulence noise
     falls well below the design's; in the design's moderate turbulence it stays near it."""

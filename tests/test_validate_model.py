@@ -10,6 +10,9 @@ import pytest
 
 from immukf_sitl.experiments import validate_model as vm
 
+# flies JSBSim or the estimator chain
+pytestmark = pytest.mark.slow
+
 
 @pytest.fixture(scope="module")
 def report():

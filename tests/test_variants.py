@@ -33,6 +33,7 @@ def q_fault():
     }
 
 
+@pytest.mark.slow
 def test_matched_ukf1_tracks_through_the_q_fault_and_mismatched_ukf2_does_not(q_fault):
     # paper, Table 2 / section 4.B: the matched filter keeps an adequate estimate, the
     # fault-free model does not once the zeroed gyro feeds it
@@ -40,6 +41,7 @@ def test_matched_ukf1_tracks_through_the_q_fault_and_mismatched_ukf2_does_not(q_
     assert q_fault["ukf2"]["att_max_deg"] > 10 * q_fault["ukf1"]["att_max_deg"]
 
 
+@pytest.mark.slow
 def test_fault_free_aero_model_beats_the_ins_equations():
     # paper, Table 1: UKF-2 (aerodynamic model) has the smaller attitude MSE than UKF-3 (INS)
     ukf2 = _errors("fault_free.tlog", "ukf2")
