@@ -6,6 +6,9 @@ report q identified within 1.0 s of the fault becoming observable and no false a
 own tlog must hold, from the estimator (system 1, component 191), the seven mode probabilities,
 ATTITUDE and the detection STATUSTEXT. MAVProxy is started before the run, stopped with SIGINT
 (a SIGTERM once left a 0-byte tlog) and killed if it lingers; every wait is bounded.
+
+The ``busy`` case flies the same beside one CPU burner per core, as a ground station on a loaded
+machine would hear it: a STATUSTEXT lost there is a detection the operator never sees.
 """
 
 from __future__ import annotations
@@ -88,7 +91,23 @@ def _read_gcs_tlog(path: Path) -> list:
     return msgs
 
 
-def test_run_with_mavproxy_ground_station(tmp_path: Path) -> None:
+@pytest.fixture(params=[0, os.cpu_count() or 2], ids=["idle", "busy"])
+def cpu_burners(request: pytest.FixtureRequest):
+    """``request.param`` processes spinning on the CPU for the test's duration."""
+    burners = [
+        subprocess.Popen(
+            [sys.executable, "-c", "while True: pass"],
+            stdin=subprocess.DEVNULL,
+            start_new_session=True,
+        )
+        for _ in range(request.param)
+    ]
+    yield len(burners)
+    for proc in burners:
+        _kill(proc)
+
+
+def test_run_with_mavproxy_ground_station(tmp_path: Path, cpu_burners: int) -> None:
     mavproxy_cmd = _mavproxy_command()
     if mavproxy_cmd is None:
         pytest.skip(
@@ -170,7 +189,7 @@ def test_run_with_mavproxy_ground_station(tmp_path: Path) -> None:
             if proc is not None:
                 _kill(proc)
     print(
-        f"e2e: MAVProxy ready {ready_s:.1f} s, run {run_s:.1f} s, "
+        f"e2e ({cpu_burners} CPU burners): MAVProxy ready {ready_s:.1f} s, run {run_s:.1f} s, "
         f"MAVProxy {'stopped by SIGINT' if stopped_by_sigint else 'killed'}"
     )
 

@@ -4,6 +4,12 @@ Builds ATTITUDE, ATTITUDE_QUATERNION, GLOBAL_POSITION_INT, NAMED_VALUE_FLOAT (on
 probability), NAMED_VALUE_INT ``IMM_FAULT`` (the declared fault mode's bits at each detection or
 clearing, time-stamped, so a tlog reader sees when it happened) and STATUSTEXT from an
 :class:`~immukf_sitl.service.pipeline.EstimateOutput`, at configurable rates of the IMU clock.
+
+A detection is announced once, but UDP may lose that one datagram: a ground station under load
+once recorded 2466 of the estimator's NAMED_VALUE_FLOAT and not its single STATUSTEXT. So each
+event's STATUSTEXT is sent again :data:`STATUSTEXT_REPEATS_S` after it (three sends over 2 s of
+the IMU clock), unless a newer event supersedes it. The IMM_FAULT record, which tlog readers
+take as the event, is sent once.
 """
 
 from __future__ import annotations
@@ -21,6 +27,8 @@ from immukf_sitl.service.pipeline import EstimateOutput
 
 _CHANNEL_TAGS = {"x": "AX", "y": "AY", "z": "AZ", "p": "P", "q": "Q", "r": "R"}
 FAULT_EVENT_NAME = "IMM_FAULT"
+#: when an event's STATUSTEXT is sent again, after the event (s of the IMU clock)
+STATUSTEXT_REPEATS_S = (1.0, 2.0)
 
 
 def probability_name(mode: FaultMode) -> str:
@@ -60,15 +68,20 @@ def heartbeat() -> MavMessage:
     return heartbeat_message(mavlink.MAV_TYPE_ONBOARD_CONTROLLER)
 
 
-def event_messages(event: DetectionEvent) -> list[MavMessage]:
-    """STATUSTEXT and IMM_FAULT of a detection or clearing."""
-    ms = int(round(event.t_s * 1000.0))
+def event_text(event: DetectionEvent) -> MavMessage:
+    """STATUSTEXT of a detection (WARNING) or clearing (INFO)."""
     severity = (
         mavlink.MAV_SEVERITY_WARNING if event.kind == "detected" else mavlink.MAV_SEVERITY_INFO
     )
+    return mavlink.MAVLink_statustext_message(severity, event.text().encode())
+
+
+def event_messages(event: DetectionEvent) -> list[MavMessage]:
+    """STATUSTEXT and IMM_FAULT of a detection or clearing."""
+    ms = int(round(event.t_s * 1000.0))
     value = event.mode.bits if event.kind == "detected" else 0
     return [
-        mavlink.MAVLink_statustext_message(severity, event.text().encode()),
+        event_text(event),
         mavlink.MAVLink_named_value_int_message(ms, FAULT_EVENT_NAME.encode(), value),
     ]
 
@@ -82,6 +95,7 @@ class Publisher:
         self._position = _Every(self.rates.position_hz)
         self._probs = _Every(self.rates.probabilities_hz)
         self._heartbeat = _Every(self.rates.heartbeat_hz)
+        self._repeats: list[tuple[float, DetectionEvent]] = []  # (due time, event), in order
 
     def messages(self, out: EstimateOutput) -> list[MavMessage]:
         """Everything due at this output's time (events always)."""
@@ -91,8 +105,14 @@ class Publisher:
         msgs: list[MavMessage] = []
         if self._heartbeat.due(t_s):
             msgs.append(heartbeat())
+        if out.events:
+            self._repeats = []  # a newer event supersedes what was pending
+        while self._repeats and t_s + 1e-9 >= self._repeats[0][0]:
+            msgs.append(event_text(self._repeats.pop(0)[1]))
         for event in out.events:
             msgs.extend(event_messages(event))
+            self._repeats.extend((event.t_s + dt, event) for dt in STATUSTEXT_REPEATS_S)
+        self._repeats.sort(key=lambda due: due[0])
         roll, pitch, yaw = (float(a) for a in nav.euler_rad)
         p, q, r = (float(w) for w in nav.rates_radps)
         if self._attitude.due(t_s):

@@ -1,0 +1,70 @@
+"""The publisher's schedule: rates of the IMU clock, and a detection's STATUSTEXT repeated."""
+
+import numpy as np
+
+from immukf_sitl.estimation.fault_modes import FaultMode, single_fault_modes
+from immukf_sitl.mavlink.publish import (
+    FAULT_EVENT_NAME,
+    STATUSTEXT_REPEATS_S,
+    OutputRates,
+    Publisher,
+)
+from immukf_sitl.service.alignment import NavSolution
+from immukf_sitl.service.detection import DetectionEvent
+from immukf_sitl.service.pipeline import EstimateOutput
+
+MODES = single_fault_modes()
+DT_S = 0.01
+
+
+def output(t_s: float, events: tuple[DetectionEvent, ...] = ()) -> EstimateOutput:
+    nav = NavSolution(
+        t_s, np.zeros(3), np.array([25.0, 0.0, 0.0]), np.zeros(3), np.zeros(3),
+        np.ones(3), np.ones(3), np.ones(3), np.ones(3),
+    )  # fmt: skip
+    probs = np.full(len(MODES), 1.0 / len(MODES))
+    return EstimateOutput(t_s, nav, 47.0, 8.0, 150.0, MODES, probs, events, 100.0)
+
+
+def fly(events_at: dict[int, DetectionEvent], steps: int) -> list[tuple[float, object]]:
+    """Every STATUSTEXT and IMM_FAULT published over ``steps`` IMU samples, with its time."""
+    publisher = Publisher(OutputRates())
+    sent = []
+    for k in range(steps):
+        t_s = k * DT_S
+        event = events_at.get(k)
+        for msg in publisher.messages(output(t_s, (event,) if event else ())):
+            if msg.get_type() in ("STATUSTEXT", "NAMED_VALUE_INT"):
+                sent.append((t_s, msg))
+    return sent
+
+
+def test_a_detection_text_is_sent_three_times_over_two_seconds_and_its_event_once() -> None:
+    q = DetectionEvent("detected", FaultMode.from_name("q"), 1.0, 0.97)
+    sent = fly({100: q}, 500)
+    texts = [(t, m.text) for t, m in sent if m.get_type() == "STATUSTEXT"]
+    assert [round(t, 6) for t, _ in texts] == [1.0] + [1.0 + dt for dt in STATUSTEXT_REPEATS_S]
+    assert {text for _, text in texts} == {"IMM: q gyro fault detected, p=0.97"}
+    records = [m for _, m in sent if m.get_type() == "NAMED_VALUE_INT"]
+    assert len(records) == 1 and records[0].name == FAULT_EVENT_NAME and records[0].value == 16
+
+
+def test_a_lost_first_datagram_still_delivers_the_detection() -> None:
+    q = DetectionEvent("detected", FaultMode.from_name("q"), 1.0, 0.97)
+    sent = fly({100: q}, 500)
+    texts = [t for t, m in sent if m.get_type() == "STATUSTEXT"]
+    delivered = texts[1:]  # the ground station lost the first
+    assert delivered and delivered[0] - 1.0 <= max(STATUSTEXT_REPEATS_S)
+
+
+def test_a_newer_event_supersedes_the_pending_repeats() -> None:
+    mode = FaultMode.from_name("q")
+    detected = DetectionEvent("detected", mode, 1.0, 0.97)
+    cleared = DetectionEvent("cleared", mode, 1.5, 0.2)
+    sent = fly({100: detected, 150: cleared}, 500)
+    texts = [(round(t, 6), m.text) for t, m in sent if m.get_type() == "STATUSTEXT"]
+    assert texts[0] == (1.0, detected.text())
+    assert [t for t, text in texts if text == detected.text()] == [1.0]
+    assert [t for t, text in texts if text == cleared.text()] == [
+        1.5 + dt for dt in (0.0, *STATUSTEXT_REPEATS_S)
+    ]
