@@ -9,10 +9,10 @@ import pytest
 
 from immukf_sitl.experiments.replay import ReplayResult, replay, summary_of
 from immukf_sitl.mavlink.flightlog import FlightLog, read_flight_log
-from immukf_sitl.models.earth import NedOrigin, geodetic_to_ned, ned_to_geodetic
+from immukf_sitl.models.earth import LocalGeodetic, NedOrigin, geodetic_to_ned, ned_to_geodetic
 from immukf_sitl.models.params import load_aircraft_params
 from immukf_sitl.samples import ActuatorSample, GpsSample, ImuSample
-from immukf_sitl.service.pipeline import ACTUATOR_TIME_WRAP_S, EstimatorPipeline, LocalGeodetic
+from immukf_sitl.service.pipeline import ACTUATOR_TIME_WRAP_S, EstimatorPipeline
 
 # flies JSBSim or the estimator chain
 pytestmark = pytest.mark.slow

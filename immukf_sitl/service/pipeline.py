@@ -24,7 +24,6 @@ re-seeded from the fault-free one (paper, section 2.A).
 
 from __future__ import annotations
 
-import math
 import time
 from collections import deque
 from dataclasses import dataclass, field
@@ -32,7 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from immukf_sitl.estimation.fault_modes import FaultMode
-from immukf_sitl.models.earth import WGS84, NedOrigin
+from immukf_sitl.models.earth import LocalGeodetic, NedOrigin
 from immukf_sitl.models.params import AircraftParams
 from immukf_sitl.models.sensors import IMU_PERIOD_S, SensorSpec
 from immukf_sitl.samples import ActuatorSample, GpsSample, ImuSample
@@ -48,84 +47,6 @@ from immukf_sitl.service.tuning import FilterTuning
 
 #: SERVO_OUTPUT_RAW's ``time_usec`` is a uint32: actuator times repeat modulo this (71.6 min).
 ACTUATOR_TIME_WRAP_S = 2**32 * 1e-6
-
-# the ellipsoid pymap3d's conversions use (models.earth.WGS84)
-_WGS84_A_M = WGS84.semimajor_axis
-_WGS84_F = WGS84.flattening
-_WGS84_B_M = WGS84.semiminor_axis
-_WGS84_E2 = _WGS84_F * (2.0 - _WGS84_F)
-_WGS84_EP2 = _WGS84_E2 / (1.0 - _WGS84_E2)
-
-
-class LocalGeodetic:
-    """Geodetic <-> NED about one origin, in scalar arithmetic with the origin's frame cached.
-
-    The same transforms as :func:`~immukf_sitl.models.earth.ned_to_geodetic` and
-    :func:`~immukf_sitl.models.earth.geodetic_to_ned` (pymap3d, WGS-84), for one point at a
-    time: the origin's ECEF position and NED axes are computed once, geodetic -> ECEF is closed
-    form, and ECEF -> geodetic is Bowring's (1976) formula iterated twice. Within 10 km of the
-    origin and from -400 m to 10 km of height the two agree to well under a millimetre (the
-    tests hold them to 1 mm); pymap3d's array code costs several hundred microseconds a call,
-    this costs a few, and it runs on every filter step.
-
-    Parameters
-    ----------
-    origin : NedOrigin
-    """
-
-    def __init__(self, origin: NedOrigin) -> None:
-        self.origin = origin
-        lat = math.radians(origin.lat_deg)
-        lon = math.radians(origin.lon_deg)
-        self._origin_ecef = self._ecef(lat, lon, origin.alt_m)
-        sl, cl = math.sin(lat), math.cos(lat)
-        so, co = math.sin(lon), math.cos(lon)
-        # rows: north, east, down axes in ECEF
-        self._axes = (
-            (-sl * co, -sl * so, cl),
-            (-so, co, 0.0),
-            (-cl * co, -cl * so, -sl),
-        )
-
-    @staticmethod
-    def _ecef(lat_rad: float, lon_rad: float, alt_m: float) -> tuple[float, float, float]:
-        sl, cl = math.sin(lat_rad), math.cos(lat_rad)
-        n = _WGS84_A_M / math.sqrt(1.0 - _WGS84_E2 * sl * sl)
-        r = (n + alt_m) * cl
-        return r * math.cos(lon_rad), r * math.sin(lon_rad), (n * (1.0 - _WGS84_E2) + alt_m) * sl
-
-    def to_geodetic(
-        self, north_m: float, east_m: float, down_m: float
-    ) -> tuple[float, float, float]:
-        """``(lat_deg, lon_deg, alt_m)`` of a NED position (height above the ellipsoid)."""
-        (n0, n1, n2), (e0, e1, _), (d0, d1, d2) = self._axes
-        ox, oy, oz = self._origin_ecef
-        x = ox + n0 * north_m + e0 * east_m + d0 * down_m
-        y = oy + n1 * north_m + e1 * east_m + d1 * down_m
-        z = oz + n2 * north_m + d2 * down_m
-        p = math.hypot(x, y)
-        a, b = _WGS84_A_M, _WGS84_B_M
-        beta = math.atan2(a * z, b * p)  # reduced latitude, first guess
-        for _ in range(2):
-            sb, cb = math.sin(beta), math.cos(beta)
-            lat = math.atan2(z + _WGS84_EP2 * b * sb**3, p - _WGS84_E2 * a * cb**3)
-            beta = math.atan2((1.0 - _WGS84_F) * math.sin(lat), math.cos(lat))
-        sl = math.sin(lat)
-        n = a / math.sqrt(1.0 - _WGS84_E2 * sl * sl)
-        alt = p * math.cos(lat) + (z + _WGS84_E2 * n * sl) * sl - n
-        return math.degrees(lat), math.degrees(math.atan2(y, x)), alt
-
-    def to_ned(self, lat_deg: float, lon_deg: float, alt_m: float) -> tuple[float, float, float]:
-        """``(north, east, down)`` (m) of a geodetic position."""
-        x, y, z = self._ecef(math.radians(lat_deg), math.radians(lon_deg), alt_m)
-        ox, oy, oz = self._origin_ecef
-        dx, dy, dz = x - ox, y - oy, z - oz
-        (n0, n1, n2), (e0, e1, _), (d0, d1, d2) = self._axes
-        return (
-            n0 * dx + n1 * dy + n2 * dz,
-            e0 * dx + e1 * dy,
-            d0 * dx + d1 * dy + d2 * dz,
-        )
 
 
 @dataclass(frozen=True)
