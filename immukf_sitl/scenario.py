@@ -66,6 +66,7 @@ from immukf_sitl.models.airframe import AirframeSpec, AirframeUncertainty, scala
 from immukf_sitl.models.params import load_aircraft_params
 from immukf_sitl.models.sensors import GpsSpec, ImuSpec, SensorSpec
 from immukf_sitl.models.wind import TURBULENCE_LEVELS, WindSpec
+from immukf_sitl.yaml_fields import YamlFields
 
 FAULT_KINDS = ("zero", "stuck", "bias", "drift")
 MANOEUVRE_KINDS = ("elevator_doublet", "aileron_doublet", "rudder_doublet")
@@ -215,93 +216,13 @@ class Scenario:
 # -- parsing -------------------------------------------------------------------------------------
 
 
-class _Reader:
-    """Reads one mapping of the file, naming ``file: field`` in every error."""
-
-    def __init__(self, path: str, where: str, data: Any) -> None:
-        self.path, self.where = path, where
-        if not isinstance(data, Mapping):
-            self.fail("", "a mapping", data)
-        self.data = dict(data)
-        self.used: set[str] = set()
-
-    def name(self, key: str) -> str:
-        return f"{self.where}.{key}" if self.where else key
-
-    def fail(self, key: str, expected: str, got: Any) -> None:
-        where = self.name(key) if key else (self.where or "top level")
-        raise ScenarioError(f"{self.path}: {where}: expected {expected}, got {got!r}")
-
-    def has(self, key: str) -> bool:
-        return key in self.data
-
-    def raw(self, key: str, default: Any = ...) -> Any:
-        self.used.add(key)
-        if key not in self.data:
-            if default is ...:
-                raise ScenarioError(f"{self.path}: {self.name(key)}: required field is missing")
-            return default
-        return self.data[key]
-
-    def number(self, key: str, default: Any = ..., *, lo: float = -math.inf,
-               hi: float = math.inf, lo_open: bool = False) -> float:  # fmt: skip
-        value = self.raw(key, default)
-        if (
-            isinstance(value, bool)
-            or not isinstance(value, int | float)
-            or not math.isfinite(value)
-        ):
-            self.fail(key, "a number", value)
-        ok = (value > lo if lo_open else value >= lo) and value <= hi
-        if not ok:
-            bound = f"> {lo}" if lo_open else f">= {lo}"
-            rng = bound if hi == math.inf else f"{bound} and <= {hi}"
-            self.fail(key, f"a number {rng}", value)
-        return float(value)
-
-    def integer(self, key: str, default: Any = ...) -> int:
-        value = self.raw(key, default)
-        if isinstance(value, bool) or not isinstance(value, int) or value < 0:
-            self.fail(key, "a non-negative integer", value)
-        return int(value)
-
-    def string(self, key: str, default: Any = ...) -> str:
-        value = self.raw(key, default)
-        if not isinstance(value, str) or not value.strip():
-            self.fail(key, "a non-empty string", value)
-        return value
-
-    def boolean(self, key: str, default: Any = ...) -> bool:
-        value = self.raw(key, default)
-        if not isinstance(value, bool):
-            self.fail(key, "true or false", value)
-        return value
-
-    def vector3(self, key: str, default: Any = ...) -> tuple[float, float, float]:
-        value = self.raw(key, default)
-        if (
-            not isinstance(value, list | tuple)
-            or len(value) != 3
-            or not all(isinstance(v, int | float) and not isinstance(v, bool) for v in value)
-        ):
-            self.fail(key, "a list of 3 numbers", value)
-        return (float(value[0]), float(value[1]), float(value[2]))
-
-    def child(self, key: str, default: Any = ...) -> _Reader:
-        value = self.raw(key, default)
-        return _Reader(self.path, self.name(key), value)
-
-    def done(self) -> None:
-        unknown = sorted(set(self.data) - self.used)
-        if unknown:
-            raise ScenarioError(
-                f"{self.path}: {self.name(unknown[0])}: unknown field "
-                f"(expected one of {', '.join(sorted(self.used))})"
-            )
+def _reader(path: str, where: str, data: Any) -> YamlFields:
+    """A reader of one mapping of a scenario file: its errors are :class:`ScenarioError`."""
+    return YamlFields(path, where, data, ScenarioError)
 
 
 def _waypoint(path: str, where: str, data: Any) -> Waypoint:
-    r = _Reader(path, where, data)
+    r = _reader(path, where, data)
     wp = Waypoint(
         north_m=r.number("north_m"),
         east_m=r.number("east_m"),
@@ -312,7 +233,7 @@ def _waypoint(path: str, where: str, data: Any) -> Waypoint:
     return wp
 
 
-def _flight_plan(r: _Reader) -> FlightPlan:
+def _flight_plan(r: YamlFields) -> FlightPlan:
     raw = r.raw("waypoints")
     if not isinstance(raw, list) or not raw:
         r.fail("waypoints", "a non-empty list of waypoints", raw)
@@ -329,7 +250,7 @@ def _flight_plan(r: _Reader) -> FlightPlan:
 
 
 def _fault(path: str, where: str, data: Any, duration_s: float) -> FaultSpec:
-    r = _Reader(path, where, data)
+    r = _reader(path, where, data)
     t_s = r.number("t_s", lo=0.0, hi=duration_s)
     channels = r.raw("channels")
     if isinstance(channels, str):
@@ -354,7 +275,7 @@ def _fault(path: str, where: str, data: Any, duration_s: float) -> FaultSpec:
 
 
 def _manoeuvre(path: str, where: str, data: Any, duration_s: float) -> ManoeuvreSpec:
-    r = _Reader(path, where, data)
+    r = _reader(path, where, data)
     kind = r.string("kind")
     if kind not in MANOEUVRE_KINDS:
         r.fail("kind", f"one of {', '.join(MANOEUVRE_KINDS)}", kind)
@@ -368,7 +289,7 @@ def _manoeuvre(path: str, where: str, data: Any, duration_s: float) -> Manoeuvre
     return spec
 
 
-def _sensors(r: _Reader) -> SensorSpec:
+def _sensors(r: YamlFields) -> SensorSpec:
     """The ``sensors:`` block; every default is that of :class:`SensorSpec`."""
     imu_r = r.child("imu", {})
     d_imu = ImuSpec()
@@ -412,7 +333,7 @@ def _sensors(r: _Reader) -> SensorSpec:
     return SensorSpec(imu=imu, gps=gps)
 
 
-def _airframe(r: _Reader) -> AirframeSpec:
+def _airframe(r: YamlFields) -> AirframeSpec:
     """The ``airframe:`` block; ``scale`` names are checked against the parameter file."""
     scale_r = r.child("scale", {})
     known = scalable_parameters(load_aircraft_params())
@@ -435,7 +356,7 @@ def _airframe(r: _Reader) -> AirframeSpec:
     return AirframeSpec(scale=scale, uncertainty=uncertainty)
 
 
-def _wind(r: _Reader) -> WindSpec:
+def _wind(r: YamlFields) -> WindSpec:
     """The ``wind:`` block."""
     turbulence = r.string("turbulence", "none")
     if turbulence not in TURBULENCE_LEVELS:
@@ -456,8 +377,8 @@ def parse_sensors(data: Any, path: str = "<sensors>") -> SensorSpec:
     A file may hold the block itself or a mapping with a ``sensors:`` key (a whole scenario).
     """
     if isinstance(data, Mapping) and "sensors" in data:
-        return _sensors(_Reader(path, "sensors", data["sensors"]))
-    return _sensors(_Reader(path, "", data if data is not None else {}))
+        return _sensors(_reader(path, "sensors", data["sensors"]))
+    return _sensors(_reader(path, "", data if data is not None else {}))
 
 
 def sensors_to_yaml(spec: SensorSpec) -> str:
@@ -495,7 +416,7 @@ def load_sensors(path: str | Path) -> SensorSpec:
 
 def parse_scenario(data: Any, path: str = "<scenario>") -> Scenario:
     """Validate parsed YAML into a :class:`Scenario`; raises :class:`ScenarioError`."""
-    r = _Reader(path, "", data)
+    r = _reader(path, "", data)
     duration_s = r.number("duration_s", lo=1.0, hi=24 * 3600.0)
     start_r = r.child("start", {})
     start = StartSpec(

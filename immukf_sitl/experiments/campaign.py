@@ -78,6 +78,7 @@ from immukf_sitl.errors import UserError
 from immukf_sitl.estimation.fault_modes import FaultMode, all_fault_modes, single_fault_modes
 from immukf_sitl.scenario import FaultSpec, Scenario, ScenarioError, parse_scenario
 from immukf_sitl.service.filters import VARIANTS
+from immukf_sitl.yaml_fields import YamlFields
 
 LOOPS = ("closed", "open")
 FAULT_SET_NAMES = ("all_64", "single")
@@ -343,60 +344,12 @@ class Campaign:
 # -- parsing -------------------------------------------------------------------------------------
 
 
-class _Fields:
-    """One mapping of the file; every error names ``file: field``."""
-
-    def __init__(self, path: str, where: str, data: Any) -> None:
-        self.path, self.where = path, where
-        if not isinstance(data, Mapping):
-            self.fail("", "a mapping", data)
-        self.data = dict(data)
-        self.used: set[str] = set()
-
-    def name(self, key: str) -> str:
-        return f"{self.where}.{key}" if self.where else key
-
-    def fail(self, key: str, expected: str, got: Any) -> None:
-        where = self.name(key) if key else (self.where or "top level")
-        raise CampaignError(f"{self.path}: {where}: expected {expected}, got {got!r}")
-
-    def raw(self, key: str, default: Any = ...) -> Any:
-        self.used.add(key)
-        if key not in self.data:
-            if default is ...:
-                raise CampaignError(f"{self.path}: {self.name(key)}: required field is missing")
-            return default
-        return self.data[key]
-
-    def number(self, key: str, default: Any = ..., lo: float = -math.inf) -> float:
-        value = self.raw(key, default)
-        ok = isinstance(value, int | float) and not isinstance(value, bool)
-        if not ok or not math.isfinite(value) or value < lo:
-            self.fail(key, f"a number >= {lo:g}" if lo > -math.inf else "a number", value)
-        return float(value)
-
-    def integer(self, key: str, default: Any = ..., lo: int = 0) -> int:
-        value = self.raw(key, default)
-        if isinstance(value, bool) or not isinstance(value, int) or value < lo:
-            self.fail(key, f"an integer >= {lo}", value)
-        return int(value)
-
-    def string(self, key: str, default: Any = ...) -> str:
-        value = self.raw(key, default)
-        if not isinstance(value, str) or not value.strip():
-            self.fail(key, "a non-empty string", value)
-        return value
-
-    def done(self) -> None:
-        unknown = sorted(set(self.data) - self.used)
-        if unknown:
-            raise CampaignError(
-                f"{self.path}: {self.name(unknown[0])}: unknown field "
-                f"(expected one of {', '.join(sorted(self.used))})"
-            )
+def _fields(path: str, where: str, data: Any) -> YamlFields:
+    """A reader of one mapping of a campaign file: its errors are :class:`CampaignError`."""
+    return YamlFields(path, where, data, CampaignError)
 
 
-def _fault_set(r: _Fields, variant: str, value: Any) -> tuple[FaultMode, ...]:
+def _fault_set(r: YamlFields, variant: str, value: Any) -> tuple[FaultMode, ...]:
     where = f"variants.{variant}"
     if value == "all_64":
         return all_fault_modes()
@@ -420,7 +373,7 @@ def _fault_set(r: _Fields, variant: str, value: Any) -> tuple[FaultMode, ...]:
     return tuple(sorted(modes, key=order.__getitem__))
 
 
-def _variants(r: _Fields) -> tuple[tuple[str, tuple[FaultMode, ...]], ...]:
+def _variants(r: YamlFields) -> tuple[tuple[str, tuple[FaultMode, ...]], ...]:
     raw = r.raw("variants")
     if not isinstance(raw, Mapping) or not raw:
         r.fail("variants", f"a mapping of variants ({', '.join(VARIANTS)}) to fault sets", raw)
@@ -445,7 +398,7 @@ def _variants(r: _Fields) -> tuple[tuple[str, tuple[FaultMode, ...]], ...]:
     return tuple(out)
 
 
-def _number_list(r: _Fields, key: str, default: list[float], lo: float) -> tuple[float, ...]:
+def _number_list(r: YamlFields, key: str, default: list[float], lo: float) -> tuple[float, ...]:
     value = r.raw(key, default)
     if not isinstance(value, list):
         value = [value]
@@ -458,7 +411,7 @@ def _number_list(r: _Fields, key: str, default: list[float], lo: float) -> tuple
     return tuple(float(v) for v in value)
 
 
-def _fault_times(r: _Fields) -> tuple[float, ...] | UniformFaultTimes:
+def _fault_times(r: YamlFields) -> tuple[float, ...] | UniformFaultTimes:
     value = r.raw("fault_times_s", [5.0])
     if not isinstance(value, Mapping):
         return _number_list(r, "fault_times_s", [5.0], lo=0.0)
@@ -478,7 +431,7 @@ def _fault_times(r: _Fields) -> tuple[float, ...] | UniformFaultTimes:
     return UniformFaultTimes(float(bounds[0]), float(bounds[1]))
 
 
-def _filter_models(r: _Fields) -> tuple[str, ...]:
+def _filter_models(r: YamlFields) -> tuple[str, ...]:
     value = r.raw("filter_model", ["paper"])
     if isinstance(value, str):
         value = [value]
@@ -492,7 +445,7 @@ def _filter_models(r: _Fields) -> tuple[str, ...]:
     return tuple(value)
 
 
-def _loops(r: _Fields) -> tuple[str, ...]:
+def _loops(r: YamlFields) -> tuple[str, ...]:
     value = r.raw("loop", ["closed"])
     if isinstance(value, str):
         value = [value]
@@ -506,7 +459,7 @@ def _loops(r: _Fields) -> tuple[str, ...]:
     return tuple(value)
 
 
-def _air(r: _Fields) -> tuple[AirSpec, ...]:
+def _air(r: YamlFields) -> tuple[AirSpec, ...]:
     value = r.raw("air", None)
     if value is None:
         return (AirSpec("default"),)
@@ -514,7 +467,7 @@ def _air(r: _Fields) -> tuple[AirSpec, ...]:
         r.fail("air", "a list of {name, airframe, wind} entries", value)
     out = []
     for i, item in enumerate(value):
-        entry = _Fields(r.path, f"air[{i}]", item)
+        entry = _fields(r.path, f"air[{i}]", item)
         name = entry.string("name")
         blocks = {k: entry.raw(k) for k in ("airframe", "wind") if k in entry.data}
         entry.done()
@@ -524,8 +477,8 @@ def _air(r: _Fields) -> tuple[AirSpec, ...]:
     return tuple(out)
 
 
-def _failure(r: _Fields) -> FailureCriterion:
-    f = _Fields(r.path, "failure", r.raw("failure", {}) or {})
+def _failure(r: YamlFields) -> FailureCriterion:
+    f = _fields(r.path, "failure", r.raw("failure", {}) or {})
     d = FailureCriterion()
     stop = f.raw("stop", d.stop)
     if not isinstance(stop, bool):
@@ -542,7 +495,7 @@ def _failure(r: _Fields) -> FailureCriterion:
     return out
 
 
-def _scenario_block(r: _Fields) -> Mapping[str, Any]:
+def _scenario_block(r: YamlFields) -> Mapping[str, Any]:
     value = r.raw("scenario")
     if isinstance(value, str):
         path = Path(r.path).parent / value
@@ -559,8 +512,8 @@ def _scenario_block(r: _Fields) -> Mapping[str, Any]:
 
 def parse_campaign(data: Any, path: str = "<campaign>") -> Campaign:
     """Validate parsed YAML into a :class:`Campaign`; raises :class:`CampaignError`."""
-    r = _Fields(path, "", data)
-    figure_f = _Fields(path, "figure", r.raw("figure", {}) or {})
+    r = _fields(path, "", data)
+    figure_f = _fields(path, "figure", r.raw("figure", {}) or {})
     figure = FigureSpec(
         variant=figure_f.string("variant", "imm"), fault=figure_f.string("fault", "q")
     )
