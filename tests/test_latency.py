@@ -12,8 +12,8 @@ from scipy.spatial.transform import Rotation
 
 from immukf_sitl.cli import main as cli_main
 from immukf_sitl.mavlink.codec import euler_to_quaternion
-from immukf_sitl.mavlink.serve import DurationHistogram, SimTimeWindows, lag_statistics
 from immukf_sitl.mavlink.wire import DatagramReader, connect
+from immukf_sitl.service.timing import DurationHistogram, SimTimeWindows, lag_statistics
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="SO_TIMESTAMPNS is Linux's")

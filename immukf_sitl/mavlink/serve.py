@@ -35,8 +35,6 @@ from collections import Counter, deque
 from dataclasses import dataclass, field
 from typing import TextIO
 
-import numpy as np
-
 from immukf_sitl.errors import UserError
 from immukf_sitl.mavlink import codec
 from immukf_sitl.mavlink.publish import OutputRates, Publisher, heartbeat
@@ -62,7 +60,12 @@ from immukf_sitl.options import (
     add_tlog_argument,
 )
 from immukf_sitl.service.pipeline import EstimateOutput, EstimatorPipeline
-from immukf_sitl.service.timing import TimingStats
+from immukf_sitl.service.timing import (
+    REPORT_WINDOW_S,
+    SimTimeWindows,
+    TimingStats,
+    lag_statistics,
+)
 
 HELP = """\
 Run the IMM-UKF estimator on a MAVLink stream and publish its results.
@@ -88,107 +91,6 @@ READY = "serve: ready"
 STATS_WINDOW = 20_000
 #: Lags kept for the statistics: 10 minutes of ATTITUDE at its default 50 Hz.
 LAG_WINDOW = 30_000
-#: Sim time covered by each entry of ``windows`` in ``--json`` (s).
-REPORT_WINDOW_S = 600.0
-
-
-def lag_statistics(values_us: deque) -> dict[str, float | int | None]:
-    """Mean, median, p99 and max (us) and the count of a series of lags."""
-    arr = np.fromiter(values_us, float)
-    if arr.size == 0:
-        return {"mean": None, "median": None, "p99": None, "max": None, "n": 0}
-    return {
-        **TimingStats.of(arr).to_json(),
-        "max": float(arr.max()),
-        "n": int(arr.size),
-    }
-
-
-class DurationHistogram:
-    """Durations (us) counted in 1-us bins up to 100 ms: quantiles at a fixed memory cost."""
-
-    BINS = 100_000
-
-    def __init__(self) -> None:
-        self.counts = np.zeros(self.BINS, dtype=np.int64)
-        self.n = 0
-        self.max_us = 0.0
-
-    def add(self, value_us: float) -> None:
-        """Count one duration (negative ones in the first bin, beyond 100 ms in the last)."""
-        self.counts[min(max(int(value_us), 0), self.BINS - 1)] += 1
-        self.n += 1
-        self.max_us = max(self.max_us, value_us)
-
-    def clear(self) -> None:
-        """Forget everything (the memory is kept)."""
-        self.counts.fill(0)
-        self.n = 0
-        self.max_us = 0.0
-
-    def summary(self) -> dict[str, float | int | None]:
-        """Median, p99 (lower edge of their 1-us bin), max and count."""
-        if self.n == 0:
-            return {"median": None, "p99": None, "max": None, "n": 0}
-        cumulative = np.cumsum(self.counts)
-
-        def quantile(q: float) -> float:
-            return float(np.searchsorted(cumulative, q * self.n))
-
-        return {
-            "median": quantile(0.5),
-            "p99": quantile(0.99),
-            "max": round(self.max_us, 1),
-            "n": self.n,
-        }
-
-
-class SimTimeWindows:
-    """Step time and lag per window of sim time (``windows`` in ``--json``; the soak reads it).
-
-    Parameters
-    ----------
-    window_s : float
-        Sim time per window (s).
-    """
-
-    def __init__(self, window_s: float = REPORT_WINDOW_S) -> None:
-        self.window_s = float(window_s)
-        self.closed: list[dict] = []
-        self._index: int | None = None
-        self._step = DurationHistogram()
-        self._lag = DurationHistogram()
-
-    def add(self, t_s: float, step_us: float | None, lag_us: float | None) -> None:
-        """Count one IMU sample's step time and lag (None: it had none) at sim time ``t_s``."""
-        index = int(t_s // self.window_s) if math.isfinite(t_s) else -1
-        if index != self._index:
-            self._close()
-            self._index = index
-        if step_us is not None:
-            self._step.add(step_us)
-        if lag_us is not None:
-            self._lag.add(lag_us)
-
-    def _close(self) -> None:
-        if self._index is not None and (self._step.n or self._lag.n):
-            self.closed.append(self._entry())
-        self._step.clear()
-        self._lag.clear()
-
-    def _entry(self) -> dict:
-        start = (self._index or 0) * self.window_s
-        return {
-            "t_start_s": start,
-            "t_end_s": start + self.window_s,
-            "step_us": self._step.summary(),
-            "lag_us": self._lag.summary(),
-        }
-
-    def report(self) -> list[dict]:
-        """The closed windows and the current one (marked ``partial``)."""
-        current = [{**self._entry(), "partial": True}] if self._index is not None else []
-        return [*self.closed, *current]
 
 
 @dataclass
