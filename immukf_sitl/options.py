@@ -26,9 +26,9 @@ from immukf_sitl.models.params import load_aircraft_params
 from immukf_sitl.models.sensors import SensorSpec
 from immukf_sitl.scenario import load_sensors
 from immukf_sitl.service.detection import DetectorConfig
+from immukf_sitl.service.filter_models import FILTER_MODELS, FilterModel, PaperModel, filter_model
 from immukf_sitl.service.filters import VARIANTS
 from immukf_sitl.service.pipeline import EstimatorPipeline, PipelineConfig
-from immukf_sitl.service.tuning import FilterTuning
 
 __all__ = [
     "FilterOptions",
@@ -115,8 +115,8 @@ class FilterOptions:
         The mode UKF-1 is matched to.
     detector : DetectorConfig
         Declaration and clearing thresholds and dwells, settling time.
-    tuning : FilterTuning
-        Process noise and the Markov chain.
+    filter_model : FilterModel
+        The filter's aircraft model with its tuning and Markov chain (``--filter-model``).
     params_path : str or None
         Aircraft parameter YAML (None: the packaged Aerosonde).
     sensors : SensorSpec
@@ -129,7 +129,7 @@ class FilterOptions:
     variant: str = "imm"
     true_mode: FaultMode | None = None
     detector: DetectorConfig = field(default_factory=DetectorConfig)
-    tuning: FilterTuning = field(default_factory=FilterTuning)
+    filter_model: FilterModel = field(default_factory=PaperModel)
     params_path: str | None = None
     sensors: SensorSpec = field(default_factory=SensorSpec)
     sensors_path: str | None = None
@@ -153,7 +153,7 @@ class FilterOptions:
         ("--settle", "detector", "settle_s", "seconds after alignment with no declarations"),
         (
             "--recovery-probability",
-            "tuning",
+            "filter_model",
             "recovery_probability",
             "per-step Markov probability fault -> fault-free; --filter-model real-air: 1e-7 "
             "(docs/design/detection-and-tuning.md)",
@@ -163,7 +163,7 @@ class FilterOptions:
     @classmethod
     def add_arguments(cls, parser: argparse.ArgumentParser) -> None:
         """Add the filter and detection options (defaults from the records)."""
-        defaults = {"detector": DetectorConfig(), "tuning": FilterTuning()}
+        defaults = {"detector": DetectorConfig(), "filter_model": PaperModel()}
         group = parser.add_argument_group("filter and detection")
         group.add_argument(
             "--variant",
@@ -178,7 +178,7 @@ class FilterOptions:
         )
         group.add_argument(
             "--filter-model",
-            choices=FILTER_MODELS,
+            choices=tuple(FILTER_MODELS),
             default="paper",
             help="the aircraft model of ukf1/ukf2/imm: paper (12 states: still air, exact "
             "sensors and airframe; default) or real-air (30 states: wind, gyro biases, force "
@@ -225,7 +225,7 @@ class FilterOptions:
                 true_mode = FaultMode.from_name(args.true_mode)
             except ValueError as exc:
                 raise UserError(f"--true-mode: {exc}") from None
-        values: dict[str, dict[str, float]] = {"detector": {}, "tuning": {}}
+        values: dict[str, dict[str, float]] = {"detector": {}, "filter_model": {}}
         for flag, record, attribute, _ in cls._NUMERIC:
             value = getattr(args, attribute)
             if value is None:
@@ -235,11 +235,8 @@ class FilterOptions:
             values[record][attribute] = value
         try:
             detector = DetectorConfig(**values["detector"])
-            if getattr(args, "filter_model", "paper") == "real-air":
-                tuning = FilterTuning.real_air(**values["tuning"])
-            else:
-                tuning = FilterTuning(**values["tuning"])
-            tuning.transition((FaultMode(0), FaultMode(1)))  # validates the chain
+            model = filter_model(getattr(args, "filter_model", "paper"), **values["filter_model"])
+            model.transition((FaultMode(0), FaultMode(1)))  # validates the chain
         except ValueError as exc:
             raise UserError(str(exc)) from None
         if args.params_path is not None and not Path(args.params_path).is_file():
@@ -251,7 +248,7 @@ class FilterOptions:
             args.variant,
             true_mode,
             detector,
-            tuning,
+            model,
             args.params_path,
             sensors,
             args.sensors_path,
@@ -262,7 +259,7 @@ class FilterOptions:
         config = PipelineConfig(
             variant=self.variant,
             true_mode=self.true_mode,
-            tuning=self.tuning,
+            filter_model=self.filter_model,
             detector=self.detector,
             sensors=self.sensors,
         )
@@ -271,7 +268,7 @@ class FilterOptions:
     def to_argv(self) -> list[str]:
         """The same options as command-line arguments (``run`` passes them to ``serve``)."""
         argv = ["--variant", self.variant]
-        argv += ["--filter-model", "real-air" if self.tuning.slow_states else "paper"]
+        argv += ["--filter-model", self.filter_model.name]
         if self.true_mode is not None:
             argv += ["--true-mode", self.true_mode.name]
         for flag, record, attribute, _ in self._NUMERIC:
@@ -281,10 +278,6 @@ class FilterOptions:
         if self.sensors_path is not None:
             argv += ["--sensors", self.sensors_path]
         return argv
-
-
-#: ``--filter-model`` choices: the paper's 12-state model, the 30-state real-air model.
-FILTER_MODELS = ("paper", "real-air")
 
 
 @dataclass(frozen=True)

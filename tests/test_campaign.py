@@ -323,12 +323,12 @@ def test_replicate_r_is_airframe_draw_r_in_every_air() -> None:
 
 
 def test_the_filter_model_chooses_the_tuning_of_the_run(monkeypatch: pytest.MonkeyPatch) -> None:
-    from immukf_sitl.service.tuning import FilterTuning
+    from immukf_sitl.service.filter_models import PaperModel, RealAirModel
 
     seen = []
 
     def capture(scenario, config, **kwargs):
-        seen.append(config.tuning)
+        seen.append(config.filter_model)
         raise RuntimeError("not flown")
 
     monkeypatch.setattr(campaign_run, "run_inprocess", capture)
@@ -337,7 +337,7 @@ def test_the_filter_model_chooses_the_tuning_of_the_run(monkeypatch: pytest.Monk
         spec = next(r for r in runs if r.filter_model == model and r.variant == "imm")
         row = campaign_run.execute_run(spec)
         assert row["filter_model"] == model and row["error"] == "RuntimeError: not flown"
-    assert seen == [FilterTuning(), FilterTuning.real_air()]
+    assert seen == [PaperModel(), RealAirModel()]
     assert seen[0] != seen[1]
 
 

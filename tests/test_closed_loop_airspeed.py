@@ -11,9 +11,9 @@ from immukf_sitl.models.aero import AeroModel
 from immukf_sitl.models.augmented import N_RIGID, WIND
 from immukf_sitl.models.earth import body_to_ned
 from immukf_sitl.models.params import load_aircraft_params
+from immukf_sitl.service.filter_models import PaperModel, RealAirModel
 from immukf_sitl.service.filters import build_aero_estimator
 from immukf_sitl.service.pipeline import EstimateOutput
-from immukf_sitl.service.tuning import FilterTuning
 
 
 @pytest.fixture(scope="module")
@@ -26,7 +26,7 @@ def _output(nav) -> EstimateOutput:
 
 
 def test_real_air_navigation_flies_the_air_relative_speed(model) -> None:
-    est = build_aero_estimator("ukf2", model, tuning=FilterTuning.real_air())
+    est = build_aero_estimator("ukf2", model, filter_model=RealAirModel())
     x0, u0 = model.trim(25.0)
     x0[8] = 0.3  # heading 17 deg
     wind = np.array([-8.0, 1.0, 0.5])  # a headwind
@@ -42,7 +42,7 @@ def test_real_air_navigation_flies_the_air_relative_speed(model) -> None:
 
 
 def test_still_air_navigation_flies_the_ground_speed(model) -> None:
-    est = build_aero_estimator("ukf2", model, tuning=FilterTuning())
+    est = build_aero_estimator("ukf2", model, filter_model=PaperModel())
     x0, u0 = model.trim(25.0)
     nav = est.navigation(est.start(0.0, x0, np.eye(12) * 1e-4, u0))
     assert nav.wind_ned_mps is None

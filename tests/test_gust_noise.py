@@ -13,12 +13,12 @@ from immukf_sitl.models.augmented import GUST, N_AUGMENTED, N_RIGID, N_SLOW, Aug
 from immukf_sitl.models.params import load_aircraft_params
 from immukf_sitl.models.sensors import SensorSpec
 from immukf_sitl.models.wind import TURBULENCE_LEVELS, milspec_low_altitude_sigmas
+from immukf_sitl.service.filter_models import RealAirModel
 from immukf_sitl.service.noise_model import (
     milspec_scale_lengths_m,
     rotational_gust_sigmas,
     slow_state_noise,
 )
-from immukf_sitl.service.tuning import FilterTuning
 
 
 @pytest.fixture(scope="module")
@@ -52,7 +52,7 @@ def _lyapunov_gradient_sigma(sigma: float, scale_m: float, speed: float, tau_s: 
 
 @pytest.mark.parametrize("level", ["light", "moderate", "severe"])
 def test_gust_rates_match_a_state_space_model_of_the_milspec_filters(model, level) -> None:
-    tuning = FilterTuning.real_air(design_turbulence=level)
+    tuning = RealAirModel(design_turbulence=level)
     span = model.params.geometry.b_m
     sigmas = rotational_gust_sigmas(tuning, span)
     gust = milspec_low_altitude_sigmas(TURBULENCE_LEVELS[level].w20_mps, tuning.design_height_m)
@@ -69,7 +69,7 @@ def test_gust_rates_match_a_state_space_model_of_the_milspec_filters(model, leve
 
 
 def test_still_air_has_no_gusts(model) -> None:
-    tuning = FilterTuning.real_air(design_turbulence="none")
+    tuning = RealAirModel(design_turbulence="none")
     assert np.all(rotational_gust_sigmas(tuning, 2.9) == 0.0)
     noise = slow_state_noise(model.params, SensorSpec(), tuning)
     assert np.all(noise.initial_sigma[GUST] == 0.0) and np.all(noise.stationary_sigma[GUST] == 0.0)
@@ -77,7 +77,7 @@ def test_still_air_has_no_gusts(model) -> None:
 
 def test_gust_states_are_the_milspec_processes(model) -> None:
     """Sigma of the MIL-F-8785C gust rates, time constants of JSBSim's generator (Yeager)."""
-    tuning = FilterTuning.real_air(design_turbulence="moderate")
+    tuning = RealAirModel(design_turbulence="moderate")
     span = model.params.geometry.b_m
     noise = slow_state_noise(model.params, SensorSpec(), tuning)
     sigmas = rotational_gust_sigmas(tuning, span)

@@ -28,8 +28,8 @@ from immukf_sitl.models.params import load_aircraft_params
 from immukf_sitl.models.sensors import GpsSpec, ImuSpec, SensorSpec
 from immukf_sitl.service.alignment import align, dead_accelerometer
 from immukf_sitl.service.detection import DetectorConfig, FaultDetector
+from immukf_sitl.service.filter_models import PaperModel, RealAirModel
 from immukf_sitl.service.noise_model import milspec_scale_lengths_m, slow_state_noise
-from immukf_sitl.service.tuning import FilterTuning
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -104,7 +104,7 @@ def test_slow_states_decay_exactly(trimmed) -> None:
 def test_gps_error_state_is_the_receivers_gauss_markov_model(params) -> None:
     """Stationary sigma sigma/sqrt(1 - exp(-2 k T)) (4.9 m), and the step noise keeps it."""
     gps = GpsSpec()
-    noise = slow_state_noise(params, SensorSpec(), FilterTuning())
+    noise = slow_state_noise(params, SensorSpec(), RealAirModel())
     stationary = gps.north_east_sigma_m / math.sqrt(1.0 - math.exp(-2.0 * gps.k_gps_per_s))
     assert noise.initial_sigma[GPS_ERROR][0] == pytest.approx(stationary)
     assert 4.8 < stationary < 5.0
@@ -115,7 +115,7 @@ def test_gps_error_state_is_the_receivers_gauss_markov_model(params) -> None:
 
 
 def test_wind_noise_is_the_dryden_driving_noise(params) -> None:
-    tuning = FilterTuning(design_turbulence="moderate", design_height_m=150.0)
+    tuning = RealAirModel(design_turbulence="moderate", design_height_m=150.0)
     noise = slow_state_noise(params, SensorSpec(), tuning)
     length = milspec_scale_lengths_m(150.0)
     h_ft = 150.0 / 0.3048
@@ -137,11 +137,11 @@ def test_wind_noise_is_the_dryden_driving_noise(params) -> None:
 
 
 def test_no_bias_on_the_spec_sheet_means_inert_bias_states(params) -> None:
-    noise = slow_state_noise(params, SensorSpec(), FilterTuning())
+    noise = slow_state_noise(params, SensorSpec(), RealAirModel())
     assert np.all(noise.initial_sigma[GYRO_BIAS] == 0.0)
     assert np.all(noise.step_variance(0.01)[GYRO_BIAS] == 0.0)
     biased = SensorSpec(ImuSpec(gyro_bias_sigma_radps=0.0017, bias_instability=True))
-    noise = slow_state_noise(params, biased, FilterTuning())
+    noise = slow_state_noise(params, biased, RealAirModel())
     assert noise.initial_sigma[GYRO_BIAS][0] == pytest.approx(math.hypot(0.0017, 5e-5))
     assert noise.decay_per_s[GYRO_BIAS][0] == pytest.approx(1.0 / 300.0)
 
@@ -301,7 +301,7 @@ def test_perturbed_airframe_in_wind_flies_without_a_declaration() -> None:
 
     scenario = load_scenario(REPO / "scenarios" / "fault_free_windy.yaml")
     config = PipelineConfig(
-        variant="imm", sensors=scenario.sensors.spec_sheet(), tuning=FilterTuning.real_air()
+        variant="imm", sensors=scenario.sensors.spec_sheet(), filter_model=RealAirModel()
     )
     run = run_inprocess(scenario, config, duration_s=25.0)
     assert run.history.events() == []
@@ -425,12 +425,12 @@ def test_start_up_probabilities_believe_the_imu_healthy(params) -> None:
 
     aero = AeroModel(params)
     x0, u0 = aero.trim(25.0)
-    paper = build_aero_estimator("imm", aero, tuning=FilterTuning())
+    paper = build_aero_estimator("imm", aero, filter_model=PaperModel())
     probs = paper.start(0.0, x0, np.eye(12) * 1e-4, u0).mode_probabilities
     np.testing.assert_allclose(probs[1:] / probs[0], 1e-4 / 0.25, rtol=1e-9)
-    real = build_aero_estimator("imm", aero, tuning=FilterTuning.real_air())
+    real = build_aero_estimator("imm", aero, filter_model=RealAirModel())
     mean, cov = real.augmented(x0, np.eye(12) * 1e-4)
     probs = real.start(0.0, mean, cov, u0).mode_probabilities
     np.testing.assert_allclose(probs[1:] / probs[0], 1e-7, rtol=1e-12)
     with pytest.raises(ValueError, match="initial_fault_probability"):
-        FilterTuning.real_air(initial_fault_probability=0.5)
+        RealAirModel(initial_fault_probability=0.5)

@@ -114,13 +114,13 @@ def test_bad_settings_are_refused() -> None:
 def _scale_after(air: dict, seconds: float) -> float:
     from immukf_sitl.experiments.inprocess import run_inprocess
     from immukf_sitl.scenario import load_scenario
+    from immukf_sitl.service.filter_models import RealAirModel
     from immukf_sitl.service.pipeline import PipelineConfig
-    from immukf_sitl.service.tuning import FilterTuning
 
     scenario = load_scenario(REPO / "scenarios" / "fault_free_windy.yaml")
     scenario = dataclasses.replace(scenario, wind=dataclasses.replace(scenario.wind, **air))
     config = PipelineConfig(
-        variant="ukf2", sensors=scenario.sensors.spec_sheet(), tuning=FilterTuning.real_air()
+        variant="ukf2", sensors=scenario.sensors.spec_sheet(), filter_model=RealAirModel()
     )
     run = run_inprocess(scenario, config, duration_s=seconds)
     return run.pipeline.estimate.turbulence.scale

@@ -87,11 +87,10 @@ def main() -> int:
     import immukf_sitl
     from immukf_sitl.mavlink.flightlog import read_flight_log
     from immukf_sitl.models.params import load_aircraft_params
+    from immukf_sitl.service.filter_models import filter_model
     from immukf_sitl.service.pipeline import PipelineConfig
-    from immukf_sitl.service.tuning import FilterTuning
 
-    tuning = FilterTuning.real_air() if args.filter_model == "real-air" else FilterTuning()
-    config = PipelineConfig(tuning=tuning)
+    config = PipelineConfig(filter_model=filter_model(args.filter_model))
     params = load_aircraft_params()
     stream = list(read_flight_log(args.tlog).stream)
     one_pass(stream, config, params)  # kernels compiled or loaded, caches warm

@@ -15,8 +15,8 @@ import time
 
 from immukf_sitl.experiments.inprocess import run_inprocess
 from immukf_sitl.scenario import load_scenario
+from immukf_sitl.service.filter_models import filter_model
 from immukf_sitl.service.pipeline import PipelineConfig
-from immukf_sitl.service.tuning import FilterTuning
 
 
 def main(specs: list[str]) -> None:
@@ -25,8 +25,9 @@ def main(specs: list[str]) -> None:
         if model not in ("paper", "real-air") or not path:
             sys.exit(f"expected MODEL:SCENARIO with MODEL paper or real-air, got {spec!r}")
         scenario = load_scenario(path)
-        tuning = FilterTuning.real_air() if model == "real-air" else FilterTuning()
-        config = PipelineConfig(variant="imm", sensors=scenario.sensors.spec_sheet(), tuning=tuning)
+        config = PipelineConfig(
+            variant="imm", sensors=scenario.sensors.spec_sheet(), filter_model=filter_model(model)
+        )
         start = time.time()
         summary = run_inprocess(scenario, config).summary().to_json()
         fault = summary["faults"][0] if summary["faults"] else {}

@@ -25,8 +25,9 @@ from immukf_sitl.models.earth import NedOrigin
 from immukf_sitl.models.params import load_aircraft_params
 from immukf_sitl.models.sensors import SensorSpec
 from immukf_sitl.options import add_json_argument
+from immukf_sitl.service.filter_models import FILTER_MODELS as MODEL_TYPES
+from immukf_sitl.service.filter_models import filter_model as make_filter_model
 from immukf_sitl.service.filters import Observation, build_aero_estimator
-from immukf_sitl.service.tuning import FilterTuning
 
 GPS_EVERY_STEPS = 100
 ORIGIN = NedOrigin(-33.87, 151.21, 100.0)
@@ -73,7 +74,7 @@ def initial_cov() -> np.ndarray:
     return np.diag([1.0, 1.0, 1.0, 0.1, 0.1, 0.1, 1e-3, 1e-3, 1e-3, 1e-4, 1e-4, 1e-4])
 
 
-FILTER_MODELS = ("paper", "real-air")
+FILTER_MODELS = tuple(MODEL_TYPES)
 
 
 def time_ours(
@@ -98,8 +99,9 @@ def time_interleaved(
     """
     banks = []
     for filter_model in filter_models:
-        tuning = FilterTuning.real_air() if filter_model == "real-air" else FilterTuning()
-        est = build_aero_estimator("imm", model, tuning=tuning, noise_form=form)
+        est = build_aero_estimator(
+            "imm", model, filter_model=make_filter_model(filter_model), noise_form=form
+        )
         estimate = est.start(0.0, *est.augmented(data.x0, initial_cov()), data.controls[0])
         banks.append({"est": est, "estimate": estimate, "imu": [], "gps": [], "first": 0})
     for k in range(1, len(data.controls)):

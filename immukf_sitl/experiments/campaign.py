@@ -20,8 +20,8 @@ A wrong file gets one line naming the file, the field and what was expected
     fault_times_s: [5.0]           # optional axis (default [5.0]): when the channels go dead;
                                    # or {uniform: [20, 80]}: one time per (replicate, air entry,
                                    # fault set), drawn from the seed (see "Random fault times")
-    filter_model: paper            # optional axis: paper (FilterTuning(), 12 states) | real-air
-                                   # (FilterTuning.real_air(), 30 states), or a list of both
+    filter_model: paper            # optional axis: paper (12 states) | real-air (30 states),
+                                   # or a list of both (as --filter-model)
     report: paper                  # optional: paper (Tables 1-3 beside the paper's) | matrix
                                    # (the real-air matrix: identification within 1 s, false
                                    # declarations per hour, attitude IMM/UKF-2, per air)
@@ -77,13 +77,14 @@ import yaml
 from immukf_sitl.errors import UserError
 from immukf_sitl.estimation.fault_modes import FaultMode, all_fault_modes, single_fault_modes
 from immukf_sitl.scenario import FaultSpec, Scenario, ScenarioError, parse_scenario
+from immukf_sitl.service.filter_models import FILTER_MODELS as MODEL_TYPES
 from immukf_sitl.service.filters import VARIANTS
 from immukf_sitl.yaml_fields import YamlFields
 
 LOOPS = ("closed", "open")
 FAULT_SET_NAMES = ("all_64", "single")
 #: ``filter_model`` values (as ``--filter-model``): the paper's 12-state model, the 30-state one
-FILTER_MODELS = ("paper", "real-air")
+FILTER_MODELS = tuple(MODEL_TYPES)
 #: ``report`` values: the paper's tables, or the real-air matrix
 REPORT_KINDS = ("paper", "matrix")
 #: first element of the spawn key of the fault-time draws (apart from the replicates' ``(r,)``)
@@ -161,7 +162,7 @@ class RunSpec:
         The flight, with its seed and fault.
     failure : FailureCriterion
     filter_model : str
-        ``paper`` or ``real-air``: the tuning of the estimator (:func:`filter_tuning`).
+        ``paper`` or ``real-air``: the estimator's filter model (as ``--filter-model``).
     """
 
     index: int

@@ -33,8 +33,8 @@ from immukf_sitl.experiments.metrics import (
     error_metrics,
     identification_metrics,
 )
+from immukf_sitl.service.filter_models import FilterModel, filter_model
 from immukf_sitl.service.pipeline import PipelineConfig
-from immukf_sitl.service.tuning import FilterTuning
 
 #: The columns of ``runs.csv``, in order (docs/results/paper/report.md defines each).
 COLUMNS: tuple[str, ...] = (
@@ -107,13 +107,9 @@ def _identity(spec: RunSpec) -> dict[str, object]:
     }
 
 
-def filter_tuning(filter_model: str) -> FilterTuning:
-    """The estimator's tuning of a campaign's ``filter_model`` (as ``--filter-model``)."""
-    if filter_model == "real-air":
-        return FilterTuning.real_air()
-    if filter_model == "paper":
-        return FilterTuning()
-    raise ValueError(f"filter_model {filter_model!r}: expected paper or real-air")
+def run_filter_model(name: str) -> FilterModel:
+    """The estimator's filter model of a campaign's ``filter_model`` (as ``--filter-model``)."""
+    return filter_model(name)
 
 
 def fly(spec: RunSpec) -> tuple[InProcessRun, FailureMonitor]:
@@ -122,7 +118,7 @@ def fly(spec: RunSpec) -> tuple[InProcessRun, FailureMonitor]:
     config = PipelineConfig(
         variant=spec.variant,
         true_mode=spec.mode if spec.variant == "ukf1" else None,
-        tuning=filter_tuning(spec.filter_model),
+        filter_model=run_filter_model(spec.filter_model),
         sensors=scenario.sensors.spec_sheet(),
     )
     monitor = FailureMonitor(spec.failure, config.detector.settle_s)

@@ -20,7 +20,6 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass
-from functools import cached_property
 from typing import Literal
 
 import numpy as np
@@ -33,9 +32,7 @@ from immukf_sitl.estimation import (
     JulierSigmaPoints,
     Measurement,
     MeasurementModel,
-    ObservabilityGate,
     ProcessModel,
-    ScaledSigmaPoints,
     UnscentedKalmanFilter,
     fault_masked_output,
     single_fault_modes,
@@ -43,13 +40,6 @@ from immukf_sitl.estimation import (
 from immukf_sitl.estimation.ukf import Backend, NoiseForm
 from immukf_sitl.models.aero import AeroModel
 from immukf_sitl.models.augmented import (
-    FORCE,
-    GPS_ERROR,
-    GUST,
-    GYRO_BIAS,
-    MOMENT,
-    N_RIGID,
-    WIND,
     AugmentedAeroModel,
 )
 from immukf_sitl.models.earth import NedOrigin, body_to_ned
@@ -57,97 +47,17 @@ from immukf_sitl.models.ins import InsModel
 from immukf_sitl.models.params import AircraftParams
 from immukf_sitl.models.sensors import IMU_PERIOD_S, SensorSpec
 from immukf_sitl.service.alignment import NavSolution
-from immukf_sitl.service.noise_model import SlowStateNoise, slow_state_noise
-from immukf_sitl.service.tuning import FilterTuning
-from immukf_sitl.service.turbulence import TurbulenceAdapter, TurbulenceEstimate
+from immukf_sitl.service.filter_models import (
+    FilterModel,
+    ModelDynamics,
+    PaperModel,
+    stationary_distribution,
+)
+from immukf_sitl.service.turbulence import TurbulenceEstimate
 
 Variant = Literal["ukf1", "ukf2", "ukf3", "imm"]
 VARIANTS: tuple[str, ...] = ("ukf1", "ukf2", "ukf3", "imm")
 GPS_COURSE_CHANNEL = 4
-
-
-def aero_process_model(
-    model: AeroModel | AugmentedAeroModel,
-    noise: SlowStateNoise | None,
-    sensors: SensorSpec,
-    tuning: FilterTuning,
-) -> ProcessModel:
-    """``x(k+1) = f[x(k), u(k), v(k)]`` (eq. 1): RK4 of the 6-DOF model with its slow states.
-
-    ``v`` is additive on the body and angular accelerations, with standard deviations
-    ``tuning.process_noise_factor`` times the accelerometer (m/s^2) and gyro (rad/s, read as
-    rad/s^2) noise: the fast residue the slow states do not carry. With slow states (the
-    real-air model), ``v`` is the three body accelerations only: the angular accelerations'
-    fast part is the rotational gusts', carried as states, and a white residue under them
-    would cost six sigma points per mode for nothing. The slow states' driving noise
-    (``noise``) is linear and rides on the sigma points (``state_noise_cov``). The filter's
-    control argument is the pair ``[u(k), u(k+1)]`` (shape (2, 4)): ``f`` flies the step on
-    ``u(k)``, the output model predicts the IMU at ``k+1`` with ``u(k+1)`` (the specific force
-    depends on the surfaces and throttle acting at the sample).
-    """
-    sigma = tuning.process_noise_factor * sensors.imu.sigmas
-    noisy = [3, 4, 5, 9, 10, 11] if noise is None else [3, 4, 5]  # the rows v moves
-    sigma = sigma[: len(noisy)]
-    q = np.diag(sigma**2)
-    dt = model.dt_s
-    nx = model.nx
-    slow = np.zeros((nx, nx))  # referred to the step's end
-    slow_at_start = np.zeros((nx, nx))  # the same noise before the step's decay
-    if noise is not None:
-        q_slow = noise.step_variance(dt)
-        slow[N_RIGID:, N_RIGID:] = np.diag(q_slow)
-        slow_at_start[N_RIGID:, N_RIGID:] = np.diag(q_slow * np.exp(2.0 * noise.decay_per_s * dt))
-    # additive form: v held over one step moves velocity (and rates) by v dt
-    additive = slow.copy()
-    additive[np.ix_(noisy, noisy)] = q * dt**2
-
-    if len(noisy) == 6:
-
-        def f(t_s: float, x: np.ndarray, u: np.ndarray, v: np.ndarray | None) -> np.ndarray:
-            return model.step(t_s, x, u[0], v)
-
-    else:
-
-        def f(t_s: float, x: np.ndarray, u: np.ndarray, v: np.ndarray | None) -> np.ndarray:
-            if v is not None:  # the body accelerations only: zero on the angular ones
-                full = np.zeros((6,) + v.shape[1:])
-                full[:3] = v
-                v = full
-            return model.step(t_s, x, u[0], v)
-
-    return ProcessModel(
-        f=f,
-        nx=nx,
-        noise_cov=q,
-        additive_noise_cov=additive,
-        angle_idx=model.angle_indices,
-        state_noise_cov=slow_at_start if noise is not None else None,
-        consider_idx=consider_indices(tuning.consider_states) if noise is not None else (),
-    )
-
-
-#: the slow-state groups :attr:`FilterTuning.consider_states` may name
-SLOW_STATE_GROUPS = {
-    "wind": WIND,
-    "gyro_bias": GYRO_BIAS,
-    "force": FORCE,
-    "moment": MOMENT,
-    "gust": GUST,
-    "gps_error": GPS_ERROR,
-}
-
-
-def consider_indices(groups: Sequence[str]) -> tuple[int, ...]:
-    """State indices of the slow-state ``groups`` (names of :data:`SLOW_STATE_GROUPS`)."""
-    out: list[int] = []
-    for name in groups:
-        if name not in SLOW_STATE_GROUPS:
-            raise ValueError(
-                f"consider_states: expected names of {', '.join(SLOW_STATE_GROUPS)}, got {name!r}"
-            )
-        part = SLOW_STATE_GROUPS[name]
-        out.extend(range(N_RIGID + part.start, N_RIGID + part.stop))
-    return tuple(out)
 
 
 def aero_measurement_models(
@@ -245,19 +155,12 @@ class _Bank:
         return self.imm.diagnostics
 
     def prior_probabilities(self) -> np.ndarray:
-        """Mode probabilities to start from.
+        """Mode probabilities to start from: the Markov chain's stationary distribution."""
+        return stationary_distribution(self.imm.transition)
 
-        ``initial_fault_probability`` per fault mode when the variant sets one, else the
-        Markov chain's stationary distribution (the paper's chain: about ``onset / recovery``,
-        4e-4, per fault mode).
-        """
-        p_fault = getattr(self, "initial_fault_probability", None)
-        if p_fault is not None and len(self.modes) > 1:
-            probs = np.array([1.0 if m.bits == 0 else p_fault for m in self.modes])
-            return probs / probs.sum()
-        eigval, eigvec = np.linalg.eig(self.imm.transition.T)
-        stationary = np.real(eigvec[:, np.argmin(np.abs(eigval - 1.0))])
-        return stationary / stationary.sum()
+    def start_air(self) -> TurbulenceEstimate | None:
+        """What the variant knows of the air at start-up (None: nothing to learn)."""
+        return None
 
     def start(
         self,
@@ -271,16 +174,12 @@ class _Bank:
         """Every mode starts from ``mean``, ``cov`` at ``t_s``; ``controls`` act from then.
 
         ``imu`` is the sample at ``t_s`` (the INS integrates it over the first step; zeros if
-        not given); ``mode_probabilities`` default to the chain's stationary distribution.
+        not given); ``mode_probabilities`` default to :meth:`prior_probabilities`.
         """
         probs = self.prior_probabilities() if mode_probabilities is None else mode_probabilities
         bank = self.imm.initial_estimate(t_s, mean, cov, probs)
         imu = np.zeros(6) if imu is None else np.array(imu, dtype=float)
-        adapts = getattr(self, "turbulence", None) is not None
-        return VariantEstimate(
-            t_s, bank, np.array(controls, dtype=float), imu,
-            TurbulenceEstimate() if adapts else None,
-        )  # fmt: skip
+        return VariantEstimate(t_s, bank, np.array(controls, dtype=float), imu, self.start_air())
 
     def restart_from_fault_free(
         self, estimate: VariantEstimate, mode_probabilities: np.ndarray | None = None
@@ -319,9 +218,11 @@ class _Bank:
 
 @dataclass(frozen=True, eq=False)
 class AircraftEstimator(_Bank):
-    """A bank of mode-matched UKFs over the aerodynamic model (one mode for UKF-1/UKF-2).
+    """A bank of mode-matched UKFs over a filter model (one mode for UKF-1/UKF-2).
 
-    Build it with :func:`build_aero_estimator`.
+    What differs between the paper's and the real-air model (states, noise, start-up, the air)
+    is the ``dynamics``'; the bank only wires it to the IMM. Build it with
+    :func:`build_aero_estimator`.
     """
 
     variant: str
@@ -329,14 +230,16 @@ class AircraftEstimator(_Bank):
     imm: ImmEstimator
     imu_model: MeasurementModel
     imu_gps_model: MeasurementModel
-    noise: SlowStateNoise | None
-    turbulence: TurbulenceAdapter | None = None
-    initial_fault_probability: float | None = None
+    filter_model: FilterModel
+    dynamics: ModelDynamics
 
-    @cached_property
-    def _healthy_masks(self) -> np.ndarray:
-        """``(r, 6)``: 1 on the channels each mode takes as healthy."""
-        return np.array([m.healthy_mask for m in self.modes], dtype=float)
+    def prior_probabilities(self) -> np.ndarray:
+        """The filter model's start-up odds over the bank's modes."""
+        return self.filter_model.prior_probabilities(self.modes, self.imm.transition)
+
+    def start_air(self) -> TurbulenceEstimate | None:
+        """The filter model's knowledge of the air at start-up."""
+        return self.dynamics.start_air()
 
     def initial_estimate(
         self,
@@ -345,46 +248,13 @@ class AircraftEstimator(_Bank):
         imu: np.ndarray,
         mode_probabilities: np.ndarray | None = None,
     ) -> VariantEstimate:
-        """Every mode starts from ``nav`` (e.g. :func:`align`); ``controls`` act from its time.
-
-        The slow states start at zero with their initial sigmas; the GPS error is what
-        separates the fix ``nav`` took its position from and the true position, so the two
-        start fully anti-correlated.
-        """
-        euler_sigma = np.array(nav.euler_sigma_rad, dtype=float)
-        if self.noise is not None:  # heading = course: off by the crab of an unknown wind
-            speed = max(float(np.linalg.norm(nav.velocity_ned_mps[:2])), 1.0)
-            crab = np.arctan2(self.noise.initial_sigma[WIND.start], speed)
-            euler_sigma[2] = np.hypot(euler_sigma[2], crab)
-        mean, cov = _body_velocity_state(
-            nav.position_ned_m, nav.velocity_ned_mps, nav.euler_rad, nav.rates_radps,
-            np.concatenate([nav.position_sigma_m, nav.velocity_sigma_mps, euler_sigma,
-                            nav.rates_sigma_radps]),
-        )  # fmt: skip
-        mean, cov = self.augmented(mean, cov)
-        if self.noise is None:
-            return self.start(nav.t_s, mean, cov, controls, imu, mode_probabilities)
-        errors = np.arange(N_RIGID + GPS_ERROR.start, N_RIGID + GPS_ERROR.stop)
-        gps_var = np.diagonal(cov)[errors]
-        cov[[0, 1, 2], [0, 1, 2]] += gps_var  # the fix is the true position plus its error
-        cov[[0, 1, 2], errors] = -gps_var
-        cov[errors, [0, 1, 2]] = -gps_var
+        """Every mode starts from ``nav`` (e.g. :func:`align`); ``controls`` act from its time."""
+        mean, cov = self.dynamics.initial_state(nav)
         return self.start(nav.t_s, mean, cov, controls, imu, mode_probabilities)
 
     def augmented(self, mean: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """A 12-state rigid-body ``mean``, ``cov`` with the slow states appended (zero mean).
-
-        The paper's model (no slow states) takes them as they are.
-        """
-        if self.noise is None:
-            return np.array(mean, dtype=float), np.array(cov, dtype=float)
-        nx = self.imm.ukf.process.nx
-        full_mean = np.zeros(nx)
-        full_mean[:N_RIGID] = mean
-        full_cov = np.zeros((nx, nx))
-        full_cov[:N_RIGID, :N_RIGID] = cov
-        full_cov[N_RIGID:, N_RIGID:] = np.diag(self.noise.initial_sigma**2)
-        return full_mean, full_cov
+        """A 12-state rigid-body ``mean``, ``cov`` extended to the filter model's state."""
+        return self.dynamics.augmented(mean, cov)
 
     def step(
         self,
@@ -406,18 +276,10 @@ class AircraftEstimator(_Bank):
             z = Measurement(np.concatenate([imu, gps]), self.imu_gps_model)
         controls = np.asarray(controls, dtype=float)
         pair = np.array([previous.controls, controls])  # u(k), u(k+1)
-        adapter, rough = self.turbulence, previous.turbulence
-        if adapter is None or rough is None:
-            bank = self.imm.step(previous.filter, t_next_s, pair, z)
-            return VariantEstimate(t_next_s, bank, controls, imu)  # the IMU drives nothing here
-        bank = self.imm.step(previous.filter, t_next_s, pair, z, adapter.process_at(rough.scale))
-        if bank.updated and bank.innovations is not None and bank.innovation_var is not None:
-            lead = bank.most_likely_mode
-            rough = adapter.update(
-                rough, bank.innovations[lead, :6], bank.innovation_var[lead, :6],
-                self._healthy_masks[lead],
-            )  # fmt: skip
-        return VariantEstimate(t_next_s, bank, controls, imu, rough)
+        bank, air = self.dynamics.step(
+            self.imm, previous.filter, previous.turbulence, t_next_s, pair, z
+        )
+        return VariantEstimate(t_next_s, bank, controls, imu, air)  # the IMU drives nothing here
 
     def navigation(self, estimate: VariantEstimate) -> NavSolution:
         """The combined estimate as a navigation solution."""
@@ -435,39 +297,8 @@ class AircraftEstimator(_Bank):
             np.sqrt(np.clip(np.diagonal(vel_cov), 0.0, None)),
             _sigma(cov, slice(6, 9)),
             _sigma(cov, slice(9, 12)),
-            None if self.noise is None else x[N_RIGID + WIND.start : N_RIGID + WIND.stop].copy(),
+            self.dynamics.wind_ned_mps(x),
         )
-
-
-def _body_velocity_state(
-    position_ned_m: np.ndarray,
-    velocity_ned_mps: np.ndarray,
-    euler_rad: np.ndarray,
-    rates_radps: np.ndarray,
-    sigma: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray]:
-    """The 12-state mean and covariance of a navigation solution with independent ``sigma``.
-
-    The state holds the velocity in body axes, ``v_b = R_bn v_n``: its uncertainty is that of
-    ``v_n`` and of the attitude (a heading error turns the ground velocity into the body's y
-    axis), correlated with the attitude; first order, with the derivative by central
-    differences.
-    """
-    euler = np.asarray(euler_rad, dtype=float)
-    v_n = np.asarray(velocity_ned_mps, dtype=float)
-    mean = np.concatenate([position_ned_m, body_to_ned(euler).T @ v_n, euler, rates_radps])
-    # Jacobian of [p, v_b, euler, rates] with respect to [p, v_n, euler, rates]
-    jac = np.eye(12)
-    jac[3:6, 3:6] = body_to_ned(euler).T
-    step = 1e-6
-    for i in range(3):
-        d = np.zeros(3)
-        d[i] = step
-        plus = body_to_ned(euler + d).T @ v_n
-        minus = body_to_ned(euler - d).T @ v_n
-        jac[3:6, 6 + i] = (plus - minus) / (2.0 * step)
-    cov = jac @ np.diag(np.asarray(sigma, dtype=float) ** 2) @ jac.T
-    return mean, 0.5 * (cov + cov.T)
 
 
 def build_aero_estimator(
@@ -475,19 +306,20 @@ def build_aero_estimator(
     model: AeroModel,
     true_mode: FaultMode | None = None,
     sensors: SensorSpec | None = None,
-    tuning: FilterTuning | None = None,
+    filter_model: FilterModel | None = None,
     noise_form: NoiseForm = "augmented",
     kappa: float = 0.0,
     backend: Backend = "auto",
 ) -> AircraftEstimator:
     """UKF-1 (``"ukf1"``, needs ``true_mode``), UKF-2 (``"ukf2"``) or UKF-4 (``"imm"``).
 
-    ``backend`` selects how the filter's kernels run (``"auto"``/``"numba"`` compiled,
-    ``"python"`` the same functions uncompiled, see :class:`UnscentedKalmanFilter`); the
-    model's is chosen when ``model`` is built.
+    ``filter_model`` defaults to the paper's (:class:`PaperModel`). ``backend`` selects how the
+    filter's kernels run (``"auto"``/``"numba"`` compiled, ``"python"`` the same functions
+    uncompiled, see :class:`UnscentedKalmanFilter`); the model's is chosen when ``model`` is
+    built.
     """
     sensors = sensors if sensors is not None else SensorSpec()
-    tuning = tuning if tuning is not None else FilterTuning()
+    filter_model = filter_model if filter_model is not None else PaperModel()
     if variant == "imm":
         modes = single_fault_modes()
     elif variant == "ukf1":
@@ -498,41 +330,14 @@ def build_aero_estimator(
         modes = (FaultMode(0),)
     else:
         raise ValueError(f"not an aerodynamic-model variant: {variant!r}")
-    if tuning.slow_states:
-        noise: SlowStateNoise | None = slow_state_noise(model.params, sensors, tuning)
-        flown: AeroModel | AugmentedAeroModel = AugmentedAeroModel(model, noise.decay_per_s)
-    else:
-        noise, flown = None, model
-    process = aero_process_model(flown, noise, sensors, tuning)
-    points = (
-        JulierSigmaPoints(kappa)
-        if tuning.sigma_point_alpha is None
-        else ScaledSigmaPoints(tuning.sigma_point_alpha, 2.0, kappa)
-    )
-    ukf = UnscentedKalmanFilter(process, points, noise_form, backend)
-    transition = tuning.transition(modes)
-    floor = tuning.probability_floor if len(modes) > 1 else 0.0
-
-    def own_imu(t_s: float, x: np.ndarray, u: np.ndarray) -> np.ndarray:
-        return flown.imu(t_s, x, u[1])  # u is the pair [u(k), u(k+1)]
-
-    gate = None
-    if tuning.slow_states and len(modes) > 1:
-        noise_var = np.diagonal(sensors.imu.noise_cov())
-        gate = ObservabilityGate(modes, own_imu, noise_var, tuning.observability_sigmas)
-    imm = ImmEstimator(ukf, transition, floor, gate)
-    imu_model, imu_gps_model = aero_measurement_models(flown, modes, sensors)
-    adapter = None
-    if noise is not None and tuning.adaptive_turbulence:
-        turbulence_idx = [N_RIGID + i for g in (WIND, GUST) for i in range(g.start, g.stop)]
-        adapter = TurbulenceAdapter(
-            process, turbulence_idx, np.diagonal(sensors.imu.noise_cov()), flown.dt_s,
-            tuning.turbulence_averaging_s, floor=tuning.turbulence_floor,
-        )  # fmt: skip
+    dynamics = filter_model.build(model, sensors, modes)
+    ukf = UnscentedKalmanFilter(dynamics.process, dynamics.sigma_points(kappa), noise_form, backend)
+    floor = filter_model.probability_floor if len(modes) > 1 else 0.0
+    imm = ImmEstimator(ukf, filter_model.transition(modes), floor, dynamics.gate())
+    imu_model, imu_gps_model = aero_measurement_models(dynamics.flown, modes, sensors)
     return AircraftEstimator(
-        variant, tuple(modes), imm, imu_model, imu_gps_model, noise, adapter,
-        tuning.initial_fault_probability,
-    )  # fmt: skip
+        variant, tuple(modes), imm, imu_model, imu_gps_model, filter_model, dynamics
+    )
 
 
 @dataclass(frozen=True, eq=False)
@@ -638,7 +443,7 @@ def build_estimator(
     origin: NedOrigin,
     true_mode: FaultMode | None = None,
     sensors: SensorSpec | None = None,
-    tuning: FilterTuning | None = None,
+    filter_model: FilterModel | None = None,
 ) -> Estimator:
     """Any of the paper's four variants (``ukf1``, ``ukf2``, ``ukf3``, ``imm``) about ``origin``."""
     if variant not in VARIANTS:
@@ -646,5 +451,9 @@ def build_estimator(
     if variant == "ukf3":
         return build_ins_estimator(origin, sensors)
     return build_aero_estimator(
-        variant, AeroModel(params, origin), true_mode=true_mode, sensors=sensors, tuning=tuning
+        variant,
+        AeroModel(params, origin),
+        true_mode=true_mode,
+        sensors=sensors,
+        filter_model=filter_model,
     )

@@ -6,17 +6,17 @@ number:
 
 - **wind**: a random walk (a steady wind of any size is learnt) driven as hard as the Dryden
   turbulence of MIL-F-8785C drives the gust velocity: ``2 sigma^2 V / L`` per axis, with the
-  intensities and scale lengths of the low-altitude model at ``tuning.design_turbulence``
-  (``moderate``: W20 = 30 kt) and height, and airspeed ``tuning.design_airspeed_mps``. The
-  initial sigma is ``tuning.initial_wind_sigma_mps`` horizontally, the turbulence's ``sigma_w``
+  intensities and scale lengths of the low-altitude model at ``design.design_turbulence``
+  (``moderate``: W20 = 30 kt) and height, and airspeed ``design.design_airspeed_mps``. The
+  initial sigma is ``design.initial_wind_sigma_mps`` horizontally, the turbulence's ``sigma_w``
   vertically.
 - **gyro bias**: the IMU spec sheet: turn-on sigma (initial) and the bias instability as a
   Gauss-Markov process of the sheet's correlation time.
-- **force correction**: the model error of an airframe with ``tuning.model_uncertainty``
+- **force correction**: the model error of an airframe with ``design.model_uncertainty``
   (:func:`~immukf_sitl.models.augmented.model_error_sigmas`), combined with the
   accelerometer's turn-on bias and instability, is the initial sigma. Most of it is a constant
   offset; a random walk covers the part that changes with the flight condition within
-  ``tuning.correction_time_constant_s``. A correction that followed every change of the
+  ``design.correction_time_constant_s``. A correction that followed every change of the
   specific force (a Gauss-Markov process at the error's full size) would also follow a sensor
   dying slowly into view: the healthy filter would absorb the fault.
 - **moment correction**: the same, for the angular acceleration.
@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import scipy.integrate
@@ -53,7 +54,9 @@ from immukf_sitl.models.augmented import (
 from immukf_sitl.models.params import AircraftParams
 from immukf_sitl.models.sensors import SensorSpec
 from immukf_sitl.models.wind import TURBULENCE_LEVELS, milspec_low_altitude_sigmas
-from immukf_sitl.service.tuning import FilterTuning
+
+if TYPE_CHECKING:  # the model builds its noise from here
+    from immukf_sitl.service.filter_models import RealAirModel
 
 __all__ = [
     "SlowStateNoise",
@@ -100,7 +103,7 @@ class SlowStateNoise:
 
 
 def slow_state_noise(
-    params: AircraftParams, sensors: SensorSpec, tuning: FilterTuning
+    params: AircraftParams, sensors: SensorSpec, design: RealAirModel
 ) -> SlowStateNoise:
     """The slow states' noise for ``params``, the sensors' spec sheet and the design air."""
     initial = np.zeros(N_SLOW)
@@ -109,14 +112,14 @@ def slow_state_noise(
     imu, gps = sensors.imu, sensors.gps
 
     # wind: random walk driven by the design turbulence (Dryden: psd 2 sigma^2 V / L)
-    level = TURBULENCE_LEVELS[tuning.design_turbulence]
-    gust = milspec_low_altitude_sigmas(level.w20_mps, tuning.design_height_m)
-    scale = milspec_scale_lengths_m(tuning.design_height_m)
-    stationary[WIND] = np.sqrt(2.0 * gust**2 * tuning.design_airspeed_mps / scale)
-    initial[WIND] = [tuning.initial_wind_sigma_mps, tuning.initial_wind_sigma_mps, gust[2]]
+    level = TURBULENCE_LEVELS[design.design_turbulence]
+    gust = milspec_low_altitude_sigmas(level.w20_mps, design.design_height_m)
+    scale = milspec_scale_lengths_m(design.design_height_m)
+    stationary[WIND] = np.sqrt(2.0 * gust**2 * design.design_airspeed_mps / scale)
+    initial[WIND] = [design.initial_wind_sigma_mps, design.initial_wind_sigma_mps, gust[2]]
     # vertical wind: no mean over level ground, the Dryden gust itself (sigma_w, L_w / V)
     down = WIND.start + 2
-    decay[down] = tuning.design_airspeed_mps / scale[2]
+    decay[down] = design.design_airspeed_mps / scale[2]
     stationary[down] = gust[2]
 
     # gyro bias: the spec sheet
@@ -130,29 +133,29 @@ def slow_state_noise(
     # model error (with the accelerometer's bias folded into the force correction): a random
     # walk from its size, driven so that it covers its variation with the flight condition in
     # one correction_time_constant_s
-    error = model_error_sigmas(params, tuning.model_uncertainty, tuning.design_airspeed_mps)
+    error = model_error_sigmas(params, design.model_uncertainty, design.design_airspeed_mps)
     accel_wander = imu.accel_bias_instability_mps2 if instability else 0.0
     initial[FORCE] = np.sqrt(error.force_mps2**2 + imu.accel_bias_sigma_mps2**2 + accel_wander**2)
     stationary[FORCE] = np.sqrt(
-        error.force_variation_mps2**2 / tuning.correction_time_constant_s
+        error.force_variation_mps2**2 / design.correction_time_constant_s
         + 2.0 * accel_wander**2 / imu.bias_time_constant_s  # the wander's driving PSD
     )
     initial[MOMENT] = error.moment_radps2
     stationary[MOMENT] = error.moment_variation_radps2 / math.sqrt(
-        tuning.correction_time_constant_s
+        design.correction_time_constant_s
     )
 
     # rotational gusts: first-order Gauss-Markov processes of the MIL-F-8785C sigmas and the
     # time constants of JSBSim's generator (Yeager eqs. 9, 13, 17: L_p / V, 4 b / (pi V), 3 b /
     # (pi V))
     span = params.geometry.b_m
-    level = TURBULENCE_LEVELS[tuning.design_turbulence]
+    level = TURBULENCE_LEVELS[design.design_turbulence]
     if level.w20_mps > 0.0:
-        l_w = milspec_scale_lengths_m(tuning.design_height_m)[2]
-        speed = tuning.design_airspeed_mps
+        l_w = milspec_scale_lengths_m(design.design_height_m)[2]
+        speed = design.design_airspeed_mps
         tau = np.array([math.sqrt(l_w * span) / 2.6 / speed, 4.0 * span / (math.pi * speed),
                         3.0 * span / (math.pi * speed)])  # fmt: skip
-        sigma_g = rotational_gust_sigmas(tuning, span)
+        sigma_g = rotational_gust_sigmas(design, span)
         initial[GUST] = sigma_g
         stationary[GUST] = sigma_g
         decay[GUST] = 1.0 / tau
@@ -170,7 +173,7 @@ def slow_state_noise(
     return SlowStateNoise(initial, decay, stationary)
 
 
-def rotational_gust_sigmas(tuning: FilterTuning, span_m: float) -> np.ndarray:
+def rotational_gust_sigmas(design: RealAirModel, span_m: float) -> np.ndarray:
     """Standard deviations of the rotational gusts ``(p_g, q_g, r_g)`` (rad/s) at the design air.
 
     MIL-F-8785C / MIL-HDBK-1797 (Dryden) as JSBSim's turbulence implements them (Yeager,
@@ -180,10 +183,10 @@ def rotational_gust_sigmas(tuning: FilterTuning, span_m: float) -> np.ndarray:
     (eqs. 13, 16); their variances are those filters' outputs integrated over the Dryden
     spectra of ``w_g`` and ``v_g``.
     """
-    level = TURBULENCE_LEVELS[tuning.design_turbulence]
-    _, sigma_v, sigma_w = milspec_low_altitude_sigmas(level.w20_mps, tuning.design_height_m)
-    _, l_v, l_w = milspec_scale_lengths_m(tuning.design_height_m)
-    speed = tuning.design_airspeed_mps
+    level = TURBULENCE_LEVELS[design.design_turbulence]
+    _, sigma_v, sigma_w = milspec_low_altitude_sigmas(level.w20_mps, design.design_height_m)
+    _, l_v, l_w = milspec_scale_lengths_m(design.design_height_m)
+    speed = design.design_airspeed_mps
 
     def dryden_lateral(omega: float, sigma: float, scale: float) -> float:
         # one-sided Dryden PSD of v_g or w_g, (m/s)^2 / (rad/s): integrates to sigma^2

@@ -37,13 +37,13 @@ from immukf_sitl.models.sensors import IMU_PERIOD_S, SensorSpec
 from immukf_sitl.samples import ActuatorSample, GpsSample, ImuSample
 from immukf_sitl.service.alignment import NavSolution, align
 from immukf_sitl.service.detection import DetectionEvent, DetectorConfig, FaultDetector
+from immukf_sitl.service.filter_models import FilterModel, PaperModel
 from immukf_sitl.service.filters import (
     Estimator,
     Observation,
     VariantEstimate,
     build_estimator,
 )
-from immukf_sitl.service.tuning import FilterTuning
 
 #: SERVO_OUTPUT_RAW's ``time_usec`` is a uint32: actuator times repeat modulo this (71.6 min).
 ACTUATOR_TIME_WRAP_S = 2**32 * 1e-6
@@ -55,7 +55,7 @@ class PipelineConfig:
 
     variant: str = "imm"
     true_mode: FaultMode | None = None
-    tuning: FilterTuning = field(default_factory=FilterTuning)
+    filter_model: FilterModel = field(default_factory=PaperModel)
     sensors: SensorSpec = field(default_factory=SensorSpec)
     detector: DetectorConfig = field(default_factory=DetectorConfig)
     min_align_speed_mps: float = 10.0
@@ -178,7 +178,7 @@ class EstimatorPipeline:
         x0, u0 = AeroModel(self.params, origin).trim(25.0)
         cfg = self.config
         estimator = build_estimator(
-            cfg.variant, self.params, origin, cfg.true_mode, cfg.sensors, cfg.tuning
+            cfg.variant, self.params, origin, cfg.true_mode, cfg.sensors, cfg.filter_model
         )
         imu = np.array([0.5, 0.0, -9.8, 0.0, 0.0, 0.0])
         gps = np.array([0.0, 0.0, 0.0, float(x0[3]), 0.0])
@@ -325,7 +325,7 @@ class EstimatorPipeline:
         assert self.origin is not None and self._controls is not None
         cfg = self.config
         estimator = build_estimator(
-            cfg.variant, self.params, self.origin, cfg.true_mode, cfg.sensors, cfg.tuning
+            cfg.variant, self.params, self.origin, cfg.true_mode, cfg.sensors, cfg.filter_model
         )
         # a re-alignment keeps what the detector declared: the failed channel is not trusted
         # by the alignment, and the bank starts believing it

@@ -1,14 +1,12 @@
 """How rough the air is, learnt in flight from the filter's own innovations.
 
-The real-air model drives its wind and rotational-gust states as hard as the design air
-(:attr:`FilterTuning.design_turbulence`, moderate: the worst it is meant to hold in). In calmer
-air the model then trusts its prediction of the IMU far less than it could. In calm air the
-healthy filter's innovations on the accelerometers had half the standard deviation it predicted.
-A dead channel's small reading change was absorbed by the wind and gust states before its mode
-could win: a dead p gyro took 1.15 s to identify, where the same filter built for a quarter of
-the design's intensity took 0.20 s. Built for that quarter and flown in light turbulence
-(half the design's), though, its attitude error reached 18 deg where the design held 7.9 deg.
-So the intensity is estimated, not assumed.
+The real-air model drives its wind and rotational-gust states as hard as its design air
+(:class:`~immukf_sitl.service.filter_models.RealAirModel`, moderate turbulence: the roughest it
+is meant to hold in). In calmer air that design trusts the model's prediction of the IMU far less
+than the air allows (in calm air the healthy filter's accelerometer innovations have about half
+the standard deviation it predicts), and the wind and gust states explain away a dead channel's
+small change of reading before its mode can win. A design for calm air fails the other way, in
+rough air. So the intensity is estimated, not assumed.
 
 MIL-F-8785C scales every gust intensity (``sigma_u``, ``sigma_v``, ``sigma_w`` and the
 rotational gusts) with one number, W20. So one scale ``k = sigma_flown / sigma_design``
