@@ -370,11 +370,8 @@ def _row(**cells: str) -> dict[str, str]:
 
 
 def test_matrix_summary_on_a_hand_made_run_set() -> None:
-    from immukf_sitl.experiments.campaign_report import (
-        matrix_markdown,
-        matrix_summary,
-        pre_fault_declarations,
-    )
+    from immukf_sitl.experiments.campaign_render import matrix_markdown
+    from immukf_sitl.experiments.campaign_summary import matrix_summary, pre_fault_declarations
 
     def imm(fault: str, **cells: str) -> dict[str, str]:
         return _row(variant="imm", fault=fault, fault_t_s="40", **cells)
@@ -434,7 +431,8 @@ def test_matrix_summary_on_a_hand_made_run_set() -> None:
 def test_matrix_attitude_pairs_the_variants_of_one_flight_only() -> None:
     """Open loop the variants estimate the same flight, closed each flies its own: the IMM/UKF-2
     ratio pairs rows of one loop, and the report says which comparison it is."""
-    from immukf_sitl.experiments.campaign_report import matrix_markdown, matrix_summary
+    from immukf_sitl.experiments.campaign_render import matrix_markdown
+    from immukf_sitl.experiments.campaign_summary import matrix_summary
 
     def flight(loop: str, imm_mse: str, ukf2_mse: str) -> list[dict[str, str]]:
         return [

@@ -1,0 +1,235 @@
+"""The real-air matrix computed from a campaign's ``runs.csv`` rows.
+
+Identification within 1 s of observability, false declarations per fault-free hour, and the IMM's
+attitude error against UKF-2's on the same flights, per filter model and air, with the acceptance
+criteria.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+from immukf_sitl.experiments.metrics import false_declaration_rate
+from immukf_sitl.experiments.tables import (
+    Row,
+)
+
+#: the matrix's acceptance criteria: identified within this long of becoming observable (s) ...
+MATRIX_WITHIN_S = 1.0
+
+
+#: ... in at least this share of the observable single faults
+MATRIX_IDENTIFIED_SHARE = 0.95
+
+
+#: zero false declarations in at least this much fault-free flight (h)
+MATRIX_FAULT_FREE_HOURS = 1.0
+
+
+#: the IMM's attitude MSE at most this multiple of UKF-2's on the same fault-free flight
+MATRIX_ATTITUDE_RATIO = 1.2
+
+
+def _float(text: str) -> float:
+    try:
+        return float(text)
+    except ValueError:
+        return math.nan
+    return text
+
+
+def _ordered(values: Sequence[str]) -> list[str]:
+    """Distinct values in first-seen order."""
+    return list(dict.fromkeys(values))
+
+
+def pre_fault_declarations(row: Row) -> list[str]:
+    """Modes the run declared in its fault-free time (all of a fault-free run's declarations).
+
+    ``declarations`` holds ``mode@t`` items; the detector declares nothing while it settles.
+    """
+    fault_t = _float(row["fault_t_s"]) if row["fault"] != "none" else math.inf
+    out = []
+    for item in row.get("declarations", "").split():
+        mode, _, t_text = item.partition("@")
+        if _float(t_text) < fault_t:
+            out.append(mode)
+    return out
+
+
+def _identification(imm: Sequence[Row]) -> dict[str, object]:
+    faulted = [r for r in imm if r["fault"] != "none"]
+    # a run stopped by a critical failure before its fault never had the fault
+    before = [r for r in faulted if _float(r["flown_s"]) < _float(r["fault_t_s"])]
+    observable = [r for r in faulted if r["observable_t_s"] != ""]
+    within = [r for r in observable if r["identified_within_1s"] == "true"]
+    late = [r for r in observable if r["identified_ok"] == "true" and r not in within]
+    wrong = [r for r in observable if r["identified"] not in ("none", r["fault"])]
+    missed = [r for r in observable if r["identified"] == "none"]
+    delays = [_float(r["detection_delay_s"]) for r in observable if r["detection_delay_s"]]
+    channels = {}
+    for channel in ("x", "y", "z", "p", "q", "r"):
+        mine = [r for r in observable if r["fault"] == channel]
+        channels[channel] = {
+            "observable": len(mine),
+            "identified_within_1s": sum(r in within for r in mine),
+        }
+    share = len(within) / len(observable) if observable else math.nan
+    return {
+        "faulted_runs": len(faulted),
+        "observable": len(observable),
+        "ended_before_fault": len(before),
+        "not_observable": len(faulted) - len(observable) - len(before),
+        "identified_within_1s": len(within),
+        "identified_within_1s_share": _number(share),
+        "identified_later": len(late),
+        "wrong_mode_first": len(wrong),
+        "missed": len(missed),
+        "detection_delay_s_median": _number(_median(delays)),
+        "detection_delay_s_max": _number(max(delays) if delays else math.nan),
+        "by_channel": channels,
+    }
+
+
+def _false_declarations(imm: Sequence[Row]) -> dict[str, object]:
+    rate = false_declaration_rate(imm)
+    modes: dict[str, int] = {}
+    for row in imm:
+        for mode in pre_fault_declarations(row):
+            modes[mode] = modes.get(mode, 0) + 1
+    return {
+        "declarations": int(rate["declarations"]),
+        "hours": _number(rate["hours"]),
+        "per_hour": _number(rate["per_hour"]),
+        "runs_with_declarations": sum(
+            int(r["false_declarations_fault_free"] or 0) > 0 for r in imm
+        ),
+        "runs": len(imm),
+        "by_mode": dict(sorted(modes.items())),
+    }
+
+
+def _attitude_flights(rows: Sequence[Row]) -> list[dict[str, object]]:
+    """Per fault-free flight (air, loop, replicate): the IMM's, UKF-2's and UKF-3's attitude error.
+
+    Open loop (the autopilot on truth), the variants estimate the very same flight; closed, each
+    flies its own from the first turn on.
+    """
+    cells: dict[tuple[str, str, str], dict[str, Row]] = {}
+    for row in rows:
+        if row["fault"] == "none" and row["variant"] in ("imm", "ukf2", "ukf3"):
+            key = (row["air"], row.get("loop") or "closed", row["replicate"])
+            cells.setdefault(key, {})[row["variant"]] = row
+    out = []
+    for (air, loop, replicate), by in cells.items():
+        flight: dict[str, object] = {"air": air, "loop": loop, "replicate": int(replicate)}
+        for variant in ("imm", "ukf2", "ukf3"):
+            row = by.get(variant)
+            flight[f"{variant}_att_max_deg"] = _number(
+                _float(row["est_att_max_deg"]) if row else math.nan
+            )
+            flight[f"{variant}_att_mse_deg2"] = _number(
+                _float(row["est_att_mse_deg2"]) if row else math.nan
+            )
+            flight[f"{variant}_status"] = row["status"] if row else None
+        imm, ukf2 = flight["imm_att_mse_deg2"], flight["ukf2_att_mse_deg2"]
+        ratio = imm / ukf2 if isinstance(imm, float) and isinstance(ukf2, float) and ukf2 else None
+        flight["imm_over_ukf2_mse"] = _number(ratio if ratio is not None else math.nan)
+        out.append(flight)
+    return out
+
+
+def _attitude(flights: Sequence[dict[str, object]]) -> dict[str, object]:
+    def column(key: str) -> list[float]:
+        return [f[key] for f in flights if isinstance(f[key], float)]
+
+    out: dict[str, object] = {"flights": len(flights)}
+    for variant in ("imm", "ukf2", "ukf3"):
+        mse, top = column(f"{variant}_att_mse_deg2"), column(f"{variant}_att_max_deg")
+        out[f"{variant}_att_mse_deg2_mean"] = _number(sum(mse) / len(mse) if mse else math.nan)
+        out[f"{variant}_att_max_deg_max"] = _number(max(top) if top else math.nan)
+    # a flight whose UKF-2 failed has no reference: counted apart, never as within the ratio
+    ratios = [
+        f["imm_over_ukf2_mse"]
+        for f in flights
+        if isinstance(f["imm_over_ukf2_mse"], float) and f["ukf2_status"] == "stable"
+    ]
+    out["flights_ukf2_critical"] = sum(f["ukf2_status"] == "critical" for f in flights)
+    # the ratio of the means over the flights both flew (a flight only one has finished would
+    # tilt it)
+    paired = [f for f in flights if isinstance(f["imm_over_ukf2_mse"], float)]
+    imm = sum(f["imm_att_mse_deg2"] for f in paired)
+    ukf2 = sum(f["ukf2_att_mse_deg2"] for f in paired)
+    out["imm_over_ukf2_mse_of_means"] = _number(imm / ukf2 if paired and ukf2 else math.nan)
+    out["imm_over_ukf2_mse_worst"] = _number(max(ratios) if ratios else math.nan)
+    out["flights_within_ratio"] = sum(r <= MATRIX_ATTITUDE_RATIO for r in ratios)
+    out["flights_compared"] = len(ratios)
+    return out
+
+
+def _matrix_group(rows: Sequence[Row]) -> dict[str, object]:
+    imm = [r for r in rows if r["variant"] == "imm"]
+    return {
+        "identification": _identification(imm),
+        "false_declarations": _false_declarations(imm),
+        "attitude": _attitude(_attitude_flights(rows)),
+    }
+
+
+def matrix_summary(rows: Sequence[Row]) -> dict[str, object]:
+    """The real-air matrix from ``runs.csv`` rows, per filter model: per air and overall.
+
+    Per group: identification of the observable single faults (within
+    :data:`MATRIX_WITHIN_S` of observability, by channel), false declarations per hour of
+    fault-free exposure (:func:`~immukf_sitl.experiments.metrics.false_declaration_rate`), and
+    the attitude error of the IMM beside UKF-2 and UKF-3 on the fault-free flights. Rows of
+    runs that failed to run are left out; critical runs count with what they flew.
+    """
+    rows = [r for r in rows if r["status"] != "error"]
+    out: dict[str, object] = {}
+    for model in _ordered([r["filter_model"] for r in rows]):
+        mine = [r for r in rows if r["filter_model"] == model]
+        airs = _ordered([r["air"] for r in mine])
+        overall = _matrix_group(mine)
+        out[model] = {
+            "airs": {air: _matrix_group([r for r in mine if r["air"] == air]) for air in airs},
+            "overall": overall,
+            "flights": _attitude_flights(mine),
+            "critical": [
+                {
+                    "run_id": r["run_id"],
+                    "failure": r["failure"],
+                    "failure_t_s": _float(r["failure_t_s"]),
+                }
+                for r in mine
+                if r["status"] == "critical"
+            ],
+            "done_when": _done_when(overall),
+        }
+    return out
+
+
+def _done_when(group: dict) -> dict[str, object]:
+    ident, false, att = group["identification"], group["false_declarations"], group["attitude"]
+    share = ident["identified_within_1s_share"]
+    return {
+        "identified_within_1s": share is not None and share >= MATRIX_IDENTIFIED_SHARE,
+        "no_false_declarations_in_1h": false["declarations"] == 0
+        and (false["hours"] or 0.0) >= MATRIX_FAULT_FREE_HOURS,
+        "attitude_within_1_2x_of_ukf2": att["flights_compared"] > 0
+        and att["flights_within_ratio"] == att["flights_compared"]
+        and att["flights_ukf2_critical"] == 0,
+    }
+
+
+def _number(value: float) -> float | None:
+    return None if not math.isfinite(value) else round(float(value), 6)
+
+
+def _median(values: Sequence[float]) -> float:
+    values = sorted(v for v in values if math.isfinite(v))
+    if not values:
+        return math.nan
+    mid = len(values) // 2
+    return values[mid] if len(values) % 2 else 0.5 * (values[mid - 1] + values[mid])
