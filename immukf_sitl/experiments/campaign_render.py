@@ -8,9 +8,13 @@ numbers computed here; nothing is typed by hand but the paper's own numbers (its
 from __future__ import annotations
 
 import math
+import string
 from collections.abc import Sequence
+from importlib import resources
 
-from immukf_sitl.experiments.campaign import Campaign
+import yaml
+
+from immukf_sitl.experiments.campaign import Campaign, UniformFaultTimes
 from immukf_sitl.experiments.campaign_summary import (
     MATRIX_WITHIN_S,
     _float,
@@ -24,66 +28,30 @@ from immukf_sitl.experiments.tables import (
     table_rows,
 )
 
+
+def _paper_tables() -> dict:
+    """The paper's Tables 1-3 (``paper_tables.yaml``), as tuples."""
+    text = resources.files("immukf_sitl.experiments").joinpath("paper_tables.yaml").read_text()
+    return yaml.safe_load(text)
+
+
+_PAPER = _paper_tables()
 #: The paper's Table 1: (position UKF-2, position UKF-3, attitude UKF-2, attitude UKF-3) per
 #: row of :data:`~immukf_sitl.experiments.tables.ERROR_ROWS`.
-PAPER_TABLE1 = (
-    (3.0833, 2.5296, 0.4788, 1.010),
-    (43.8296, 43.2306, 2.5553, 13.6482),
-    (0.2058, 3.5180, 2.8067, 23.99),
-    (19.3762, 52.0945, 21.9621, 369.8632),
-)
-
-
+PAPER_TABLE1 = tuple(tuple(row) for row in _PAPER["table1"])
 #: The paper's Table 3: per fault, (position UKF-1, position UKF-4, attitude UKF-1, UKF-4) per
 #: row of ``ERROR_ROWS``.
 PAPER_TABLE3 = {
-    "none": (
-        (3.0833, 1.6346, 0.4788, 0.4516),
-        (43.8296, 24.9701, 2.5802, 1.4096),
-        (0.2058, 0.1332, 8.8151, 0.7908),
-        (19.3762, 7.0894, 31.3765, 4.8834),
-    ),
-    "x": (
-        (3.3089, 1.3433, 0.4655, 0.5169),
-        (45.4478, 26.802, 2.7127, 1.6441),
-        (0.241, 0.3086, 9.2025, 6.4197),
-        (21.7151, 16.2226, 39.2664, 18.3564),
-    ),
-    "y": (
-        (3.5244, 2.3458, 0.4467, 0.9275),
-        (42.8911, 33.2663, 2.5943, 4.8439),
-        (0.2362, 0.2326, 4.5117, 4.5282),
-        (19.7247, 12.9333, 16.1419, 19.0328),
-    ),
-    "z": (
-        (1.505, 3.0211, 0.47, 1.4849),
-        (42.6041, 27.0744, 2.6119, 7.5012),
-        (0.1758, 0.5274, 2.6774, 16.7799),
-        (14.801, 19.2425, 18.2685, 86.6483),
-    ),
-    "p": (
-        (7.6712, 1.2803, 0.5794, 0.4855),
-        (42.5428, 25.4049, 7.7757, 4.3161),
-        (0.1891, 0.4688, 6.2736, 3.6953),
-        (17.5409, 15.894, 34.3969, 17.73),
-    ),
-    "q": (
-        (2.972, 1.7612, 0.5787, 0.717),
-        (43.8074, 26.3737, 4.3261, 6.0947),
-        (0.2695, 0.452, 8.0441, 8.5438),
-        (17.2756, 15.7394, 33.6483, 47.8768),
-    ),
-    "r": (
-        (3.5209, 4.9861, 0.4931, 0.5423),
-        (46.7518, 72.3318, 2.676, 5.0983),
-        (0.2944, 1.5287, 3.6936, 13.246),
-        (18.2789, 55.2584, 18.9034, 58.0876),
-    ),
+    fault: tuple(tuple(row) for row in grid) for fault, grid in _PAPER["table3"].items()
 }
-
-
 #: The paper's Table 2 summaries: fault sets where UKF-2/3 were unstable, by number of faults.
-PAPER_TABLE2_UNSTABLE = {1: (2, 6), 2: (12, 15), 3: (17, 20), 4: (22, 22)}
+PAPER_TABLE2_UNSTABLE = {int(n): tuple(v) for n, v in _PAPER["table2_unstable"].items()}
+
+
+def render(template: str, **values: object) -> str:
+    """The text of ``templates/<template>.md`` with ``$name`` filled from ``values``."""
+    path = resources.files("immukf_sitl.experiments").joinpath("templates", f"{template}.md")
+    return string.Template(path.read_text(encoding="utf-8")).substitute(values)
 
 
 def _paper_table1_markdown() -> str:
@@ -122,33 +90,18 @@ def _table1_discussion(rows: Sequence[Row]) -> str:
     att2, att3 = mean(ukf2, "est_att_mse_deg2"), mean(ukf3, "est_att_mse_deg2")
     pos2, pos3 = mean(ukf2, "est_pos_mse_m2"), mean(ukf3, "est_pos_mse_m2")
     ctl2, ctl3 = mean(ukf2, "ctrl_att_mse_deg2"), mean(ukf3, "ctrl_att_mse_deg2")
-    better = "smaller" if att2 < att3 else "larger"
-    return (
-        f"- **Attitude estimate.** UKF-2's MSE is {fmt(att2)} deg² against UKF-3's {fmt(att3)} "
-        f"(UKF-3/UKF-2 = {_ratio_text(att3, att2)}; the paper: 13.65 against 2.56, 5.3×): "
-        f"the aerodynamic model gives a {better} attitude error than the INS equations, "
-        "as the paper finds. Ours are far smaller in absolute terms: this filter's model is "
-        "the aircraft JSBSim flies (an identical twin, relative RMS 6e-6 in specific force, "
-        "`immukf-sitl validate-model`), with process noise 10× the IMU noise, where the "
-        "paper's model carried its assumptions' errors and 100× process noise.\n"
-        f"- **Position estimate.** {fmt(pos2)} m² against {fmt(pos3)} m² (paper 43.8 and "
-        "43.2). Both filters take position from the same 1 Hz GPS; its error is the B&M "
-        "receiver's (0.21 m white plus a slow Gauss-Markov drift). The paper's 43 m² means "
-        "errors of about 6.6 m; its receiver must have been several times worse. The paper's "
-        "position Max (3.08 m) is smaller than the square root of its MSE (6.6 m), which "
-        "cannot hold for one error signal; its Max and MSE columns are not comparable.\n"
-        f"- **Control.** Attitude control MSE {fmt(ctl2)} against {fmt(ctl3)} deg² "
-        f"(UKF-3/UKF-2 = {_ratio_text(ctl3, ctl2)}; the paper: 370 against 22, 17×). Our "
-        "control error is dominated by the autopilot's own lag behind its roll and pitch "
-        "commands in the turns, which is the same whichever filter it flies on while both "
-        "estimates stay within a fraction of a degree; the paper's seventeenfold gap needs "
-        "UKF-3's attitude error to reach the controller, and ours is too small to. Our "
-        f"position control error ({fmt(mean(ukf2, 'ctrl_pos_mse_m2'))} m² for UKF-2, against "
-        "the paper's 19.4) is the distance from the desired path, and most of it is the "
-        "path geometry: when the autopilot switches waypoints, the new leg starts at the old "
-        "waypoint, which the aircraft turns inside of by tens of metres. The paper does not "
-        "say what its desired path was; a Max of 0.21 m with an MSE of 19.4 m² again cannot "
-        "describe one error signal.\n"
+    return render(
+        "table1_discussion",
+        att2=fmt(att2),
+        att3=fmt(att3),
+        att_ratio=_ratio_text(att3, att2),
+        better="smaller" if att2 < att3 else "larger",
+        pos2=fmt(pos2),
+        pos3=fmt(pos3),
+        ctl2=fmt(ctl2),
+        ctl3=fmt(ctl3),
+        ctl_ratio=_ratio_text(ctl3, ctl2),
+        ctl_pos2=fmt(mean(ukf2, "ctrl_pos_mse_m2")),
     )
 
 
@@ -179,21 +132,17 @@ def _table3_discussion(rows: Sequence[Row]) -> str:
     imm_better = [p[0] for p in pairs if p[2] < p[1]]
     best_gain = max((1.0 - p[2] / p[1] for p in pairs if 0 < p[2] < p[1]), default=0.0)
     paper_imm_better = [p[0] for p in pairs if p[4] < p[3]]
-    return (
-        f"- Estimate errors: ours are smaller than the paper's in {smaller} of {total} cells "
-        "(Max and MSE, position and attitude), for the reasons given under Table 1: an "
-        "identical-twin model and a better receiver.\n"
-        f"- UKF-4 against UKF-1, attitude estimate MSE: the IMM is within "
-        f"{_ratio_text(worst[2], worst[1])} of the matched filter in its worst case "
-        f"({worst[0]}: {fmt(worst[2])} against {fmt(worst[1])} deg²). It is lower than "
-        f"UKF-1 for {', '.join(imm_better) or 'no fault'}; in the paper, for "
-        f"{', '.join(paper_imm_better)}. The largest gap by which the IMM beats the "
-        f"matched filter here is {_percent(best_gain)}. The reason is in what UKF-1 is: "
-        "it is matched to the true mode for the whole flight, so it ignores the channel "
-        "from alignment on, also in the seconds before the fault, where the IMM still uses "
-        "the healthy channel; after the IMM's declaration the two estimates coincide.\n"
-        "- Control errors are the autopilot's and the path's, as under Table 1; they are "
-        "the same for both filters while both estimates are good.\n"
+    return render(
+        "table3_discussion",
+        smaller=smaller,
+        total=total,
+        worst_ratio=_ratio_text(worst[2], worst[1]),
+        worst_fault=worst[0],
+        worst_imm=fmt(worst[2]),
+        worst_ukf1=fmt(worst[1]),
+        imm_better=", ".join(imm_better) or "no fault",
+        paper_imm_better=", ".join(paper_imm_better),
+        best_gain=_percent(best_gain),
     )
 
 
@@ -236,34 +185,21 @@ def _table2_discussion(rows: Sequence[Row]) -> str:
         if r["variant"] in ("ukf2", "ukf3") and r["n_faults"] == "1" and r["status"] != "stable"
     ]
     failed_single = sorted({r["fault"] for r in single})
-    text += (
-        f"- Single faults that defeat a mismatched filter here: "
-        f"{', '.join(failed_single) or 'none'}. The paper's are the p and r gyros (C = 4, 6). "
-        "A channel that reads zero while its true value is far from zero (the x and z "
-        "accelerometers always, a gyro in a turn, the y accelerometer in the rudder doublet) "
-        "is, to a filter that trusts it, a wrong measurement at 100 Hz. How many cases a "
-        "mismatched filter survives depends on how hard the flight manoeuvres while the "
-        "channel is dead (the paper, section 4.B, says the same) and on the failure "
-        "criterion, which the paper does not define; ours is in the definitions above. "
-        "This flight turns from 4 s on, so every dead channel is exercised.\n"
-    )
+    text += render("single_faults", failed_single=", ".join(failed_single) or "none")
     if ukf1_bad:
         common = set(ukf1_bad[0].split("+"))
         for name in ukf1_bad[1:]:
             common &= set(name.split("+"))
         failed = [r for r in ukf1 if r["status"] != "stable"]
         after = [float(r["failure_t_s"]) - float(r["fault_t_s"]) for r in failed]
-        text += (
-            f"- UKF-1's failures ({len(failed)} of {len(ukf1)} runs) all have "
-            f"{'+'.join(c for c in 'xyzpqr' if c in common) or 'no channel in common'} dead, "
-            f"and come {min(after):.1f}-{max(after):.1f} s after the fault, with estimate "
-            f"position errors up to {fmt(max(_float(r['est_pos_max_m']) for r in failed))} m. "
-            "With the three accelerometers dead the matched filter has no specific force at "
-            "all, and with two or three gyros dead as well it has almost nothing but the model "
-            "and 1 Hz GPS; the paper reports its UKF-1 stable even with all six dead. An "
-            "estimate that leaves truth by tens of metres within a second of the fault is the "
-            "filter diverging, not the aircraft: a question for the estimator (see the "
-            "project's issue tracker), reported here as measured.\n"
+        text += render(
+            "ukf1_failures",
+            n_failed=len(failed),
+            n_runs=len(ukf1),
+            common="+".join(c for c in "xyzpqr" if c in common) or "no channel in common",
+            after_min=f"{min(after):.1f}",
+            after_max=f"{max(after):.1f}",
+            pos_max=fmt(max(_float(r["est_pos_max_m"]) for r in failed)),
         )
     return text
 
@@ -272,21 +208,19 @@ def _imm_discussion(summary: dict) -> str:
     ident = summary["imm_identification"]
     if not ident["cases"]:
         return "The campaign flew no IMM runs.\n"
-    return (
-        f"- {ident['cases']} IMM runs: the true mode identified in {ident['identified']} "
-        f"(the first declaration after the fault names it; fault-free: no declaration), "
-        f"within 1 s of the fault becoming observable in {ident['identified_within_1s']}.\n"
-        f"- Detection delay from observability: median "
-        f"{fmt(ident['detection_delay_s_median'] or math.nan)} s, max "
-        f"{fmt(ident['detection_delay_s_max'] or math.nan)} s.\n"
-        f"- False declarations: {ident['false_declarations']} "
-        f"({fmt(ident['false_declarations_per_hour'] or 0.0)} per flight hour).\n"
-        "- The paper gives none of these figures: it shows Fig. 2 for one q-gyro case and says "
-        "that with an appropriate threshold detection can be achieved.\n"
+    return render(
+        "imm_discussion",
+        cases=ident["cases"],
+        identified=ident["identified"],
+        within_1s=ident["identified_within_1s"],
+        delay_median=fmt(ident["detection_delay_s_median"] or math.nan),
+        delay_max=fmt(ident["detection_delay_s_max"] or math.nan),
+        false_declarations=ident["false_declarations"],
+        per_hour=fmt(ident["false_declarations_per_hour"] or 0.0),
     )
 
 
-def _report(
+def paper_report(
     campaign: Campaign,
     rows: Sequence[Row],
     summary: dict,
@@ -296,6 +230,7 @@ def _report(
     t3: str,
     caption: str | None,
 ) -> str:
+    """``report.md`` of a paper campaign: Tables 1-3 beside the paper's, with the discussion."""
     variants = summary["variants"]
     counts = ", ".join(
         f"{name}: {v['runs']} runs, {v['stable']} stable, {v['critical']} critical"
@@ -317,62 +252,35 @@ def _report(
     figure_text = (
         f"![Fig. 2](fig2.png)\n\nFig. 2: {caption}.\n" if caption else "No figure run flown.\n"
     )
-    return f"""# Campaign `{campaign.name}`: our numbers beside the paper's
-
-Generated by `{command}` from `runs.csv`; do not edit by hand, re-run the command.
-{campaign.description}
-
-- {summary["runs"]} runs ({summary["failed_runs"]} failed to run), {flight},
-  loop: {", ".join(campaign.loops)}, {campaign.replicates} replicate(s) per cell,
-  wall time {summary["wall_s"]:.0f} s.
-- {counts}.
-
-## Definitions
-
-- **Estimate error**: estimate against the true aircraft; position as the distance (m),
-  attitude as the norm of the roll, pitch and yaw errors (deg). **Control error**: the true
-  aircraft against the desired path (hypot of cross-track from the active leg and height minus
-  the altitude reference, m) and against the commanded roll and pitch (deg). Max and MSE over the
-  flight from the end of the 3 s settling period after alignment; every cell is the mean over
-  the replicates.
-- **Critical failure** (Table 2 "×"), the first of: the true aircraft more than
-  {failure.lateral_m:g} m from the desired path or {failure.vertical_m:g} m from the commanded
-  altitude (corridor), below {failure.ground_alt_m:g} m (ground), or the estimate more than
-  {failure.estimate_position_m:g} m or {failure.estimate_attitude_deg:g} deg from truth, or
-  missing for a second (diverged). {stop_text}
-- The paper's numbers are from its Tables 1-3; the paper does not say how long its
-  flights were, what its receiver's errors were, or what made a failure critical.
-
-## Table 1: UKF-2 and UKF-3, no fault
-
-Ours:
-
-{t1}
-The paper's:
-
-{_paper_table1_markdown()}
-{_table1_discussion(rows)}
-## Table 2: stability over the 64 fault sets
-
-{t2}
-Against the paper:
-
-{_table2_discussion(rows)}
-## Table 3: UKF-1 and UKF-4 (IMM), single faults
-
-Ours:
-
-{t3}
-The paper's:
-
-{_paper_table3_markdown()}
-{_table3_discussion(rows)}
-## The IMM's detection and identification (beyond the paper)
-
-{_imm_discussion(summary)}
-## Fig. 2: mode probabilities under a q-gyro failure
-
-{figure_text}"""
+    return render(
+        "paper_report",
+        name=campaign.name,
+        command=command,
+        description=campaign.description,
+        runs=summary["runs"],
+        failed_runs=summary["failed_runs"],
+        flight=flight,
+        loops=", ".join(campaign.loops),
+        replicates=campaign.replicates,
+        wall_s=f"{summary['wall_s']:.0f}",
+        counts=counts,
+        lateral_m=f"{failure.lateral_m:g}",
+        vertical_m=f"{failure.vertical_m:g}",
+        ground_alt_m=f"{failure.ground_alt_m:g}",
+        estimate_position_m=f"{failure.estimate_position_m:g}",
+        estimate_attitude_deg=f"{failure.estimate_attitude_deg:g}",
+        stop_text=stop_text,
+        table1=t1,
+        paper_table1=_paper_table1_markdown(),
+        table1_discussion=_table1_discussion(rows),
+        table2=t2,
+        table2_discussion=_table2_discussion(rows),
+        table3=t3,
+        paper_table3=_paper_table3_markdown(),
+        table3_discussion=_table3_discussion(rows),
+        imm_discussion=_imm_discussion(summary),
+        figure_text=figure_text,
+    )
 
 
 def _n(value: object, digits: str = ".3g") -> str:
@@ -514,3 +422,36 @@ def matrix_markdown(summary: dict[str, object]) -> str:
             lines.append("\nNo run ended in a critical failure.")
         parts.append("\n".join(lines) + "\n")
     return "\n".join(parts)
+
+
+def matrix_report(
+    campaign: Campaign,
+    summary: dict,
+    command: str,
+    tables: str,
+    commit: str,
+    caption: str | None,
+) -> str:
+    """``report.md`` of a real-air matrix campaign: what was flown, the definitions, the tables."""
+    times = campaign.fault_times_s
+    when = (
+        f"a time drawn in [{times.lo_s:g}, {times.hi_s:g}] s per (replicate, air, channel)"
+        if isinstance(times, UniformFaultTimes)
+        else f"{', '.join(f'{t:g}' for t in times)} s"
+    )
+    return render(
+        "matrix_report",
+        name=campaign.name,
+        command=command,
+        description=campaign.description,
+        runs=summary["runs"],
+        failed_runs=summary["failed_runs"],
+        replicates=campaign.replicates,
+        airs=", ".join(a.name for a in campaign.air),
+        filter_models=", ".join(campaign.filter_models),
+        when=when,
+        wall_s=f"{summary['wall_s']:.0f}",
+        commit=commit,
+        tables=tables,
+        figure_text=f"![Fig. 2](fig2.png)\n\nFig. 2: {caption}.\n" if caption else "",
+    )
