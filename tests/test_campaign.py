@@ -416,7 +416,7 @@ def test_matrix_summary_on_a_hand_made_run_set() -> None:
     att = summary["overall"]["attitude"]
     assert att["flights_within_ratio"] == 0 and att["flights_compared"] == 1
     assert att["flights_ukf2_critical"] == 0
-    assert summary["done_when"] == {
+    assert summary["acceptance"] == {
         "identified_within_1s": False,
         "no_false_declarations_in_1h": False,
         "attitude_within_1_2x_of_ukf2": False,
@@ -444,7 +444,7 @@ def test_matrix_attitude_pairs_the_variants_of_one_flight_only() -> None:
     ratios = {f["loop"]: f["imm_over_ukf2_mse"] for f in both["real-air"]["flights"]}
     assert ratios == {"closed": pytest.approx(1.5), "open": pytest.approx(1.0)}
     same = matrix_summary(flight("open", "2.2", "2.0"))
-    assert same["real-air"]["done_when"]["attitude_within_1_2x_of_ukf2"] is True
+    assert same["real-air"]["acceptance"]["attitude_within_1_2x_of_ukf2"] is True
     assert "the very same flight" in matrix_markdown(same)
     assert "its own closed loop" in matrix_markdown(matrix_summary(flight("closed", "1", "1")))
 

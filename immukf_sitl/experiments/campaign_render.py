@@ -291,135 +291,145 @@ def _pct(num: int, den: int) -> str:
     return "–" if not den else f"{100.0 * num / den:.0f} %"
 
 
+def _identification_lines(groups: list[tuple[str, dict]]) -> list[str]:
+    lines = [
+        f"**Identified within {MATRIX_WITHIN_S:g} s of becoming observable** (IMM, single "
+        "zeroed channels: the first declaration at or after the fault names the channel, "
+        "at most 1 s after the later of the fault and the moment it became observable):\n",
+        "| air | observable | identified ≤ 1 s | share | identified later | wrong mode "
+        "first | missed | not observable | ended before the fault | delay median / max (s) |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for air, g in groups:
+        i = g["identification"]
+        lines.append(
+            f"| {air} | {i['observable']} | {i['identified_within_1s']} | "
+            f"{_pct(i['identified_within_1s'], i['observable'])} | {i['identified_later']} | "
+            f"{i['wrong_mode_first']} | {i['missed']} | {i['not_observable']} | "
+            f"{i['ended_before_fault']} | "
+            f"{_n(i['detection_delay_s_median'])} / {_n(i['detection_delay_s_max'])} |"
+        )
+    lines += [
+        "\nBy channel (identified ≤ 1 s / observable):\n",
+        "| air | x | y | z | p | q | r |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for air, g in groups:
+        ch = g["identification"]["by_channel"]
+        cells = " | ".join(f"{c['identified_within_1s']}/{c['observable']}" for c in ch.values())
+        lines.append(f"| {air} | {cells} |")
+    return lines
+
+
+def _false_declaration_lines(groups: list[tuple[str, dict]]) -> list[str]:
+    lines = [
+        "\n**False declarations in fault-free flight** (IMM; from the end of the settling "
+        "period to the fault, or to the end of a fault-free flight):\n",
+        "| air | fault-free flight (h) | declarations | per hour | runs with any | modes |",
+        "|---|---|---|---|---|---|",
+    ]
+    for air, g in groups:
+        f = g["false_declarations"]
+        modes = ", ".join(f"{m} {n}" for m, n in f["by_mode"].items()) or "none"
+        lines.append(
+            f"| {air} | {_n(f['hours'], '.3f')} | {f['declarations']} | "
+            f"{_n(f['per_hour'], '.1f')} | {f['runs_with_declarations']}/{f['runs']} | "
+            f"{modes} |"
+        )
+    return lines
+
+
+def _attitude_lines(data: dict, groups: list[tuple[str, dict]]) -> list[str]:
+    loops = {f["loop"] for f in data["flights"]}
+    flown = (
+        "the autopilot flies on truth, so the variants estimate the very same flight"
+        if loops == {"open"}
+        else "each variant flies its own closed loop on the same airframe, air and noise"
+        if loops == {"closed"}
+        else "open loop: the very same flight; closed: each variant its own"
+    )
+    lines = [
+        f"\n**Attitude estimate error on the fault-free flights** (deg, deg²; {flown}; "
+        "the mean rows give "
+        "the largest max, the mean MSE, and the IMM/UKF-2 ratio of the MSE summed over the "
+        "flights both flew, with the worst ratio of a flight whose UKF-2 stayed stable; a "
+        "critical run's errors cover "
+        "its flight up to the failure, so its ratio compares unequal windows):\n",
+        "| air | loop | replicate | IMM max | UKF-2 max | UKF-3 max | IMM MSE | UKF-2 MSE | "
+        "UKF-3 MSE | IMM/UKF-2 MSE |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for f in data["flights"]:
+
+        def flag(variant: str, flight: dict = f) -> str:
+            status = flight[f"{variant}_status"]
+            return "" if status in ("stable", None) else f" ({status})"
+
+        lines.append(
+            f"| {f['air']} | {f['loop']} | {f['replicate']} | "
+            f"{_n(f['imm_att_max_deg'])}{flag('imm')} | "
+            f"{_n(f['ukf2_att_max_deg'])}{flag('ukf2')} | "
+            f"{_n(f['ukf3_att_max_deg'])}{flag('ukf3')} | "
+            f"{_n(f['imm_att_mse_deg2'])} | {_n(f['ukf2_att_mse_deg2'])} | "
+            f"{_n(f['ukf3_att_mse_deg2'])} | {_n(f['imm_over_ukf2_mse'], '.2f')} |"
+        )
+    for air, g in groups:
+        a = g["attitude"]
+        lines.append(
+            f"| {air} | | mean | {_n(a['imm_att_max_deg_max'])} (max) | "
+            f"{_n(a['ukf2_att_max_deg_max'])} (max) | {_n(a['ukf3_att_max_deg_max'])} (max) | "
+            f"{_n(a['imm_att_mse_deg2_mean'])} | {_n(a['ukf2_att_mse_deg2_mean'])} | "
+            f"{_n(a['ukf3_att_mse_deg2_mean'])} | {_n(a['imm_over_ukf2_mse_of_means'], '.2f')} "
+            f"(worst {_n(a['imm_over_ukf2_mse_worst'], '.2f')}) |"
+        )
+    return lines
+
+
+def _acceptance_lines(data: dict) -> list[str]:
+    o = data["overall"]
+    i, f, a = o["identification"], o["false_declarations"], o["attitude"]
+    done = data["acceptance"]
+
+    def mark(ok: bool) -> str:
+        return "met" if ok else "**not met**"
+
+    lines = [
+        "\n**Acceptance criteria** against this matrix:\n",
+        f"- ≥ 95 % of the observable single faults identified within 1.0 s: "
+        f"{_pct(i['identified_within_1s'], i['observable'])} "
+        f"({i['identified_within_1s']}/{i['observable']}): "
+        f"{mark(done['identified_within_1s'])}.",
+        f"- zero false declarations in at least 1 h of fault-free flight: "
+        f"{f['declarations']} in {_n(f['hours'], '.3f')} h: "
+        f"{mark(done['no_false_declarations_in_1h'])}.",
+        f"- IMM attitude MSE within 1.2× of UKF-2's on the same fault-free flight: "
+        f"{a['flights_within_ratio']}/{a['flights_compared']} flights with a stable UKF-2, "
+        f"{a['flights_ukf2_critical']} flights without a reference (UKF-2 critical) "
+        f"(ratio of the means over all flights "
+        f"{_n(a['imm_over_ukf2_mse_of_means'], '.2f')}, worst "
+        f"{_n(a['imm_over_ukf2_mse_worst'], '.2f')}): "
+        f"{mark(done['attitude_within_1_2x_of_ukf2'])}.",
+    ]
+    critical = data["critical"]
+    if critical:
+        lines.append(f"\n**Critical failures** ({len(critical)} runs; a run stops there):\n")
+        for c in critical:
+            lines.append(f"- `{c['run_id']}`: {c['failure']} at {c['failure_t_s']:.2f} s")
+    else:
+        lines.append("\nNo run ended in a critical failure.")
+    return lines
+
+
 def matrix_markdown(summary: dict[str, object]) -> str:
     """The real-air matrix tables (one section per filter model) from :func:`matrix_summary`."""
     parts = []
     for model, data in summary.items():
         groups = list(data["airs"].items()) + [("**all**", data["overall"])]
         lines = [f"### Filter model `{model}`\n"]
-        lines.append(
-            f"**Identified within {MATRIX_WITHIN_S:g} s of becoming observable** (IMM, single "
-            "zeroed channels: the first declaration at or after the fault names the channel, "
-            "at most 1 s after the later of the fault and the moment it became observable):\n"
-        )
-        lines.append(
-            "| air | observable | identified ≤ 1 s | share | identified later | wrong mode "
-            "first | missed | not observable | ended before the fault | delay median / max (s) |"
-        )
-        lines.append("|---|---|---|---|---|---|---|---|---|---|")
-        for air, g in groups:
-            i = g["identification"]
-            lines.append(
-                f"| {air} | {i['observable']} | {i['identified_within_1s']} | "
-                f"{_pct(i['identified_within_1s'], i['observable'])} | {i['identified_later']} | "
-                f"{i['wrong_mode_first']} | {i['missed']} | {i['not_observable']} | "
-                f"{i['ended_before_fault']} | "
-                f"{_n(i['detection_delay_s_median'])} / {_n(i['detection_delay_s_max'])} |"
-            )
-        lines.append("\nBy channel (identified ≤ 1 s / observable):\n")
-        lines.append("| air | x | y | z | p | q | r |")
-        lines.append("|---|---|---|---|---|---|---|")
-        for air, g in groups:
-            ch = g["identification"]["by_channel"]
-            cells = " | ".join(
-                f"{c['identified_within_1s']}/{c['observable']}" for c in ch.values()
-            )
-            lines.append(f"| {air} | {cells} |")
-        lines.append(
-            "\n**False declarations in fault-free flight** (IMM; from the end of the settling "
-            "period to the fault, or to the end of a fault-free flight):\n"
-        )
-        lines.append(
-            "| air | fault-free flight (h) | declarations | per hour | runs with any | modes |"
-        )
-        lines.append("|---|---|---|---|---|---|")
-        for air, g in groups:
-            f = g["false_declarations"]
-            modes = ", ".join(f"{m} {n}" for m, n in f["by_mode"].items()) or "none"
-            lines.append(
-                f"| {air} | {_n(f['hours'], '.3f')} | {f['declarations']} | "
-                f"{_n(f['per_hour'], '.1f')} | {f['runs_with_declarations']}/{f['runs']} | "
-                f"{modes} |"
-            )
-        loops = {f["loop"] for f in data["flights"]}
-        flown = (
-            "the autopilot flies on truth, so the variants estimate the very same flight"
-            if loops == {"open"}
-            else "each variant flies its own closed loop on the same airframe, air and noise"
-            if loops == {"closed"}
-            else "open loop: the very same flight; closed: each variant its own"
-        )
-        lines.append(
-            f"\n**Attitude estimate error on the fault-free flights** (deg, deg²; {flown}; "
-            "the mean rows give "
-            "the largest max, the mean MSE, and the IMM/UKF-2 ratio of the MSE summed over the "
-            "flights both flew, with the worst ratio of a flight whose UKF-2 stayed stable; a "
-            "critical run's errors cover "
-            "its flight up to the failure, so its ratio compares unequal windows):\n"
-        )
-        lines.append(
-            "| air | loop | replicate | IMM max | UKF-2 max | UKF-3 max | IMM MSE | UKF-2 MSE | "
-            "UKF-3 MSE | IMM/UKF-2 MSE |"
-        )
-        lines.append("|---|---|---|---|---|---|---|---|---|---|")
-        for f in data["flights"]:
-
-            def flag(variant: str, flight: dict = f) -> str:
-                status = flight[f"{variant}_status"]
-                return "" if status in ("stable", None) else f" ({status})"
-
-            lines.append(
-                f"| {f['air']} | {f['loop']} | {f['replicate']} | "
-                f"{_n(f['imm_att_max_deg'])}{flag('imm')} | "
-                f"{_n(f['ukf2_att_max_deg'])}{flag('ukf2')} | "
-                f"{_n(f['ukf3_att_max_deg'])}{flag('ukf3')} | "
-                f"{_n(f['imm_att_mse_deg2'])} | {_n(f['ukf2_att_mse_deg2'])} | "
-                f"{_n(f['ukf3_att_mse_deg2'])} | {_n(f['imm_over_ukf2_mse'], '.2f')} |"
-            )
-        for air, g in groups:
-            a = g["attitude"]
-            lines.append(
-                f"| {air} | | mean | {_n(a['imm_att_max_deg_max'])} (max) | "
-                f"{_n(a['ukf2_att_max_deg_max'])} (max) | {_n(a['ukf3_att_max_deg_max'])} (max) | "
-                f"{_n(a['imm_att_mse_deg2_mean'])} | {_n(a['ukf2_att_mse_deg2_mean'])} | "
-                f"{_n(a['ukf3_att_mse_deg2_mean'])} | {_n(a['imm_over_ukf2_mse_of_means'], '.2f')} "
-                f"(worst {_n(a['imm_over_ukf2_mse_worst'], '.2f')}) |"
-            )
-        o = data["overall"]
-        i, f, a = o["identification"], o["false_declarations"], o["attitude"]
-        done = data["done_when"]
-
-        def mark(ok: bool) -> str:
-            return "met" if ok else "**not met**"
-
-        lines.append("\n**Acceptance criteria** against this matrix:\n")
-        lines.append(
-            f"- ≥ 95 % of the observable single faults identified within 1.0 s: "
-            f"{_pct(i['identified_within_1s'], i['observable'])} "
-            f"({i['identified_within_1s']}/{i['observable']}): "
-            f"{mark(done['identified_within_1s'])}."
-        )
-        lines.append(
-            f"- zero false declarations in at least 1 h of fault-free flight: "
-            f"{f['declarations']} in {_n(f['hours'], '.3f')} h: "
-            f"{mark(done['no_false_declarations_in_1h'])}."
-        )
-        lines.append(
-            f"- IMM attitude MSE within 1.2× of UKF-2's on the same fault-free flight: "
-            f"{a['flights_within_ratio']}/{a['flights_compared']} flights with a stable UKF-2, "
-            f"{a['flights_ukf2_critical']} flights without a reference (UKF-2 critical) "
-            f"(ratio of the means over all flights "
-            f"{_n(a['imm_over_ukf2_mse_of_means'], '.2f')}, worst "
-            f"{_n(a['imm_over_ukf2_mse_worst'], '.2f')}): "
-            f"{mark(done['attitude_within_1_2x_of_ukf2'])}."
-        )
-        critical = data["critical"]
-        if critical:
-            lines.append(f"\n**Critical failures** ({len(critical)} runs; a run stops there):\n")
-            for c in critical:
-                lines.append(f"- `{c['run_id']}`: {c['failure']} at {c['failure_t_s']:.2f} s")
-        else:
-            lines.append("\nNo run ended in a critical failure.")
+        lines += _identification_lines(groups)
+        lines += _false_declaration_lines(groups)
+        lines += _attitude_lines(data, groups)
+        lines += _acceptance_lines(data)
         parts.append("\n".join(lines) + "\n")
     return "\n".join(parts)
 

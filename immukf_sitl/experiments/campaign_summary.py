@@ -205,12 +205,12 @@ def matrix_summary(rows: Sequence[Row]) -> dict[str, object]:
                 for r in mine
                 if r["status"] == "critical"
             ],
-            "done_when": _done_when(overall),
+            "acceptance": _acceptance(overall),
         }
     return out
 
 
-def _done_when(group: dict) -> dict[str, object]:
+def _acceptance(group: dict) -> dict[str, object]:
     ident, false, att = group["identification"], group["false_declarations"], group["attitude"]
     share = ident["identified_within_1s_share"]
     return {
