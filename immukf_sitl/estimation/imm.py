@@ -167,6 +167,26 @@ class ImmEstimator:
             False,
         )
 
+    def _mix(self, previous: ImmEstimate) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``log c_j``, the mixed means and covariances of every mode (eqs. 6-8)."""
+        means = np.ascontiguousarray(previous.mode_means, dtype=float)
+        covs = np.ascontiguousarray(previous.mode_covs, dtype=float)
+        r, nx = means.shape
+        log_c = np.empty(r)
+        mixed_mean = np.empty((r, nx))
+        mixed_cov = np.empty((r, nx, nx))
+        self.ukf.kernels.imm_mix(
+            self.log_transition,
+            np.ascontiguousarray(previous.log_mode_probabilities, dtype=float),
+            means,
+            covs,
+            self._angle_mask,
+            log_c,
+            mixed_mean,
+            mixed_cov,
+        )  # eqs. (6)-(8)
+        return log_c, mixed_mean, mixed_cov
+
     def step(
         self,
         previous: ImmEstimate,
@@ -198,23 +218,8 @@ class ImmEstimator:
             The estimate at ``t_next_s``.
         """
         kern = self.ukf.kernels
-        means = np.ascontiguousarray(previous.mode_means, dtype=float)
-        covs = np.ascontiguousarray(previous.mode_covs, dtype=float)
-        r, nx = means.shape
-        log_c = np.empty(r)
-        mixed_mean = np.empty((r, nx))
-        mixed_cov = np.empty((r, nx, nx))
-        kern.imm_mix(
-            self.log_transition,
-            np.ascontiguousarray(previous.log_mode_probabilities, dtype=float),
-            means,
-            covs,
-            self._angle_mask,
-            log_c,
-            mixed_mean,
-            mixed_cov,
-        )  # eqs. (6)-(8)
-
+        r, nx = previous.mode_means.shape
+        log_c, mixed_mean, mixed_cov = self._mix(previous)  # eqs. (6)-(8)
         prior = self.ukf.initial_estimate(previous.t_s, mixed_mean, mixed_cov)
         filtered = self.ukf.step(prior, t_next_s, u, measurement, process)  # eqs. (9)-(25)
 

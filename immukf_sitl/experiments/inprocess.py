@@ -31,7 +31,7 @@ import numpy as np
 
 from immukf_sitl.experiments.report import EstimateHistory, Summary, summarize
 from immukf_sitl.models.earth import NedOrigin, geodetic_to_ned
-from immukf_sitl.models.params import load_aircraft_params
+from immukf_sitl.models.params import AircraftParams, load_aircraft_params
 from immukf_sitl.samples import ActuatorSample, TruthSample
 from immukf_sitl.scenario import Scenario
 from immukf_sitl.service.pipeline import EstimateOutput, EstimatorPipeline, PipelineConfig
@@ -117,6 +117,24 @@ def _navigation(out: EstimateOutput, offset_m: np.ndarray, origin_alt_m: float) 
     )
 
 
+def _feed(
+    pipeline: EstimatorPipeline,
+    injector: FaultInjector,
+    record: FlightRecord,
+    params: AircraftParams,
+) -> EstimateOutput | None:
+    """One step of the flight into the estimator, in the order the wire delivers it.
+
+    The servo outputs first (as PWM, the way SERVO_OUTPUT_RAW carries them), then a GPS fix when
+    one is due, then the IMU sample through the fault injector.
+    """
+    pwm = params.actuators.controls_to_pwm(record.controls)
+    pipeline.on_actuators(ActuatorSample(record.time_s, tuple(pwm.get(c, 0) for c in range(1, 17))))
+    if record.gps is not None:
+        pipeline.on_gps(record.gps)
+    return pipeline.on_imu(injector.apply(record.imu))
+
+
 def run_inprocess(
     scenario: Scenario,
     config: PipelineConfig | None = None,
@@ -167,12 +185,7 @@ def run_inprocess(
     for k in range(steps + 1):
         if k:
             record = flight.step(nav if closed_loop else None)
-        t = record.time_s
-        pwm = params.actuators.controls_to_pwm(record.controls)
-        pipeline.on_actuators(ActuatorSample(t, tuple(pwm.get(c, 0) for c in range(1, 17))))
-        if record.gps is not None:
-            pipeline.on_gps(record.gps)
-        out = pipeline.on_imu(injector.apply(record.imu))
+        out = _feed(pipeline, injector, record, params)
         truth.append(record.truth.sample())
         records.append(record)
         if out is not None:

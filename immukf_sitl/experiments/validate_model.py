@@ -77,6 +77,31 @@ def _fly(
     return flight, records, time.perf_counter() - wall
 
 
+def _one_step_prediction(x: np.ndarray, x_next_model: np.ndarray) -> dict[str, Any]:
+    """Errors of the model's one-step prediction ``x_next_model`` against the flown ``x``.
+
+    Per state group, with the RMS of the state's own change in one step beside it: a
+    prediction is only useful while its error is well below that change.
+    """
+    x_next = x[:, 1:]
+    err = x_next_model - x_next
+    err[6:9] = _wrap(err[6:9])
+    change = x_next - x[:, :-1]
+    change[6:9] = _wrap(change[6:9])
+
+    def one_step(rows: slice, labels: tuple[str, ...]) -> dict[str, Any]:
+        result = _errors(err[rows], x_next[rows], labels)
+        result["step_change_rms"] = np.sqrt(np.mean(change[rows] ** 2, axis=1)).tolist()
+        return result
+
+    return {
+        "position_m": one_step(slice(0, 3), ("north", "east", "down")),
+        "velocity_mps": one_step(slice(3, 6), ("u", "v", "w")),
+        "attitude_rad": one_step(slice(6, 9), ("phi", "theta", "psi")),
+        "rates_radps": one_step(slice(9, 12), ("p", "q", "r")),
+    }
+
+
 def validate_model(
     duration_s: float = 60.0,
     seed: int = 0,
@@ -131,17 +156,6 @@ def validate_model(
     omega_dot_true = (rates[:, 2:] - rates[:, :-2]) / (2.0 * dt)  # central difference
     omega_dot_model = xdot_model[9:12, 1:-1]
 
-    x_next = x[:, 1:]
-    err = x_next_model - x_next
-    err[6:9] = _wrap(err[6:9])
-    change = x_next - x[:, :-1]
-    change[6:9] = _wrap(change[6:9])
-
-    def one_step(rows: slice, labels: tuple[str, ...]) -> dict[str, Any]:
-        result = _errors(err[rows], x_next[rows], labels)
-        result["step_change_rms"] = np.sqrt(np.mean(change[rows] ** 2, axis=1)).tolist()
-        return result
-
     return {
         "duration_s": float(steps * dt),
         "seed": int(seed),
@@ -155,12 +169,7 @@ def validate_model(
         "angular_acceleration_radps2": _errors(
             omega_dot_model - omega_dot_true, omega_dot_true, ("p", "q", "r")
         ),
-        "one_step_prediction": {
-            "position_m": one_step(slice(0, 3), ("north", "east", "down")),
-            "velocity_mps": one_step(slice(3, 6), ("u", "v", "w")),
-            "attitude_rad": one_step(slice(6, 9), ("phi", "theta", "psi")),
-            "rates_radps": one_step(slice(9, 12), ("p", "q", "r")),
-        },
+        "one_step_prediction": _one_step_prediction(x, x_next_model),
     }
 
 
