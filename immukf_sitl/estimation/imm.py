@@ -195,27 +195,12 @@ class ImmEstimator:
         measurement: Measurement | None,
         process: ProcessModel | None = None,
     ) -> ImmEstimate:
-        """One IMM cycle from ``previous`` (time ``k``) to ``k+1`` with control ``u``.
+        """One IMM cycle from ``previous`` (time ``k``) to ``t_next_s`` (``k+1``), control ``u``.
 
-        Parameters
-        ----------
-        previous : ImmEstimate
-            The estimate at ``k`` (from :meth:`initial_estimate` or the previous step).
-        t_next_s : float
-            Time of ``k+1``: of ``measurement`` and of the estimate returned. The process model
-            is called with ``previous.t_s``, the output model with ``t_next_s``.
-        u : ndarray
-            Control held over the step, passed to the models unchanged.
-        measurement : Measurement or None
-            ``z(k+1)``; ``None`` (or a non-finite ``z``) gives a predict-only step.
-        process : ProcessModel, optional
-            This step's process model, when its noise adapts (see
-            :meth:`UnscentedKalmanFilter.step`); default the filters' own.
-
-        Returns
-        -------
-        ImmEstimate
-            The estimate at ``t_next_s``.
+        The arguments are those of :meth:`UnscentedKalmanFilter.step`, with ``previous`` the
+        bank's estimate at ``k`` (from :meth:`initial_estimate` or the previous step): mixing
+        (eqs. 6-8), the mode-matched filters (eqs. 9-25), the mode probabilities (eq. 26) and
+        the combination (eqs. 27-28). Returns the bank's estimate at ``t_next_s``.
         """
         kern = self.ukf.kernels
         r, nx = previous.mode_means.shape

@@ -38,7 +38,13 @@ from numpy.typing import ArrayLike
 from scipy.optimize import least_squares
 
 from immukf_sitl.models import aero_kernels as kernels
-from immukf_sitl.models.earth import NedOrigin, isa_density_kgpm3, normal_gravity_mps2
+from immukf_sitl.models.earth import (
+    EULER_LABELS,
+    POSITION_NED_LABELS,
+    NedOrigin,
+    isa_density_kgpm3,
+    normal_gravity_mps2,
+)
 from immukf_sitl.models.params import AeroCoefficients, AircraftParams, Propulsion
 from immukf_sitl.models.sensors import IMU_PERIOD_S
 
@@ -189,15 +195,11 @@ class AeroModel:
     nu: ClassVar[int] = 4
     nv: ClassVar[int] = 6
     state_labels: ClassVar[tuple[str, ...]] = (
-        "pN_m",
-        "pE_m",
-        "pD_m",
+        *POSITION_NED_LABELS,
         "u_mps",
         "v_mps",
         "w_mps",
-        "phi_rad",
-        "theta_rad",
-        "psi_rad",
+        *EULER_LABELS,
         "p_radps",
         "q_radps",
         "r_radps",

@@ -16,6 +16,8 @@ import pymap3d
 from numpy.typing import ArrayLike
 
 __all__ = [
+    "EULER_LABELS",
+    "POSITION_NED_LABELS",
     "LocalGeodetic",
     "body_to_ned",
     "WGS84",
@@ -25,6 +27,11 @@ __all__ = [
     "ned_to_geodetic",
     "normal_gravity_mps2",
 ]
+
+#: State labels of a NED position about the origin (m) and of the ZYX Euler attitude (rad), the
+#: first and third blocks of every filter state (docs/conventions.md).
+POSITION_NED_LABELS = ("pN_m", "pE_m", "pD_m")
+EULER_LABELS = ("phi_rad", "theta_rad", "psi_rad")
 
 #: The WGS-84 ellipsoid as pymap3d knows it.
 WGS84 = pymap3d.Ellipsoid.from_name("wgs84")

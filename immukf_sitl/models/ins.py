@@ -18,7 +18,12 @@ from typing import ClassVar
 
 import numpy as np
 
-from immukf_sitl.models.earth import NedOrigin, normal_gravity_mps2
+from immukf_sitl.models.earth import (
+    EULER_LABELS,
+    POSITION_NED_LABELS,
+    NedOrigin,
+    normal_gravity_mps2,
+)
 from immukf_sitl.models.sensors import IMU_PERIOD_S, ImuSpec
 
 __all__ = ["InsModel"]
@@ -60,15 +65,11 @@ class InsModel:
     nu: ClassVar[int] = 6
     nv: ClassVar[int] = 6
     state_labels: ClassVar[tuple[str, ...]] = (
-        "pN_m",
-        "pE_m",
-        "pD_m",
+        *POSITION_NED_LABELS,
         "vN_mps",
         "vE_mps",
         "vD_mps",
-        "phi_rad",
-        "theta_rad",
-        "psi_rad",
+        *EULER_LABELS,
     )
     input_labels: ClassVar[tuple[str, ...]] = ("x", "y", "z", "p", "q", "r")
     gps_labels: ClassVar[tuple[str, ...]] = ("pN_m", "pE_m", "pD_m", "Vg_mps", "chi_rad")
@@ -100,23 +101,11 @@ class InsModel:
     def derivatives(
         self, t_s: float, x: np.ndarray, u: np.ndarray, v: np.ndarray | None = None
     ) -> np.ndarray:
-        """State derivative: ``p_dot = v``, ``v_dot = R_nb f + g``, Euler rates from ``w``.
+        """State derivative ``(9, *batch)``: ``p_dot = v``, ``v_dot = R_nb f + g``, Euler rates.
 
-        Parameters
-        ----------
-        t_s : float
-            Time (s); the model is time invariant.
-        x : numpy.ndarray
-            ``(9, *batch)`` state.
-        u : numpy.ndarray
-            ``(6,)`` or ``(6, *batch)`` IMU reading ``[f_x, f_y, f_z, p, q, r]``.
-        v : numpy.ndarray, optional
-            ``(6, *batch)`` or ``(6,)`` noise added to ``u``; None means zero.
-
-        Returns
-        -------
-        numpy.ndarray
-            ``(9, *batch)`` state derivative.
+        The arguments follow :meth:`AeroModel.derivatives` with a ``(9, *batch)`` state and
+        the IMU reading ``[f_x, f_y, f_z, p, q, r]`` as the input ``u`` (``(6,)`` or
+        ``(6, *batch)``); ``v`` is noise added to ``u`` (None: zero).
         """
         x = np.asarray(x, dtype=float)
         u = np.asarray(u, dtype=float)
