@@ -222,9 +222,13 @@ def test_predict_moments_are_eqs_16_to_18(kern, duplicated):
     cov = np.empty((batch, nx, nx))
     res = np.empty((batch, nx, n_sigma))
     kern.predict_moments(
-        moved, source, weights.mean_weights, weights.cov_weights, angle_mask(nx, (1,)), added,
-        x_points, mean, cov, res,
-    )  # fmt: skip
+        moved,
+        source,
+        kern.MomentWeights(weights.mean_weights, weights.cov_weights),
+        angle_mask(nx, (1,)),
+        added,
+        kern.Moments(x_points, mean, cov, res),
+    )
     assert np.array_equal(x_points, moved[:, :, source])
     ref_mean, ref_cov, ref_res = np_moments(x_points, weights, (1,))
     np.testing.assert_allclose(mean, ref_mean, rtol=RTOL, atol=1e-15)
@@ -250,7 +254,12 @@ def test_predict_moments_over_distinct_columns_equal_the_sums_over_all(kern):
         outs = (np.empty((nx, batch, src.size)), np.empty((batch, nx)),
                 np.empty((batch, nx, nx)), np.empty((batch, nx, src.size)))  # fmt: skip
         kern.predict_moments(
-            points, src, weights.mean_weights, weights.cov_weights, angles, added, *outs
+            points,
+            src,
+            kern.MomentWeights(weights.mean_weights, weights.cov_weights),
+            angles,
+            added,
+            kern.Moments(*outs),
         )
         return outs
 
@@ -287,9 +296,13 @@ def _run_update(kern, weights, pred_mean, pred_cov, x_res, z_points, z, add_r, a
         log_lik=np.empty(batch),
     )  # fmt: skip
     status = kern.update(
-        pred_mean, pred_cov, x_res, z_points, weights.mean_weights, weights.cov_weights,
-        angle_mask(nz, angles[0]), angle_mask(nx, angles[1]), z, add_r, *out.values(),
-    )  # fmt: skip
+        kern.Prediction(pred_mean, pred_cov, x_res),
+        z_points,
+        kern.MomentWeights(weights.mean_weights, weights.cov_weights),
+        kern.Observed(z, add_r, angle_mask(nz, angles[0])),
+        angle_mask(nx, angles[1]),
+        kern.Updated(*out.values()),  # the dict's order is the record's
+    )
     return status, out
 
 
@@ -307,8 +320,12 @@ def test_update_is_the_kalman_update_with_an_explicit_gain(kern):
     # and from LAPACK's factors, gain_update (the path after a repair) gives the same update
     again = {name: np.empty_like(out[name]) for name in ("new_mean", "new_cov", "nis", "log_lik")}
     n_nonfinite = kern.gain_update(
-        pred_mean, pred_cov, out["cross"], out["innovation"], np.linalg.cholesky(out["z_cov"]),
-        angle_mask(pred_mean.shape[1], (2,)), *again.values(),
+        kern.Prediction(pred_mean, pred_cov, x_res),
+        angle_mask(pred_mean.shape[1], (2,)),
+        kern.Updated(
+            out["z_cov"], out["cross"], out["innovation"], np.linalg.cholesky(out["z_cov"]),
+            *again.values(),
+        ),
     )  # fmt: skip
     assert n_nonfinite == 0
     for name, values in again.items():
@@ -427,10 +444,27 @@ def _both(name, *args):
     """Run kernel ``name`` compiled and interpreted on copies of ``args``; both argument lists."""
     runs = []
     for kern in (compiled_kernels, load_kernels("python")):
-        copies = [a.copy() if isinstance(a, np.ndarray) else a for a in args]
+        copies = [_copy(a) for a in args]
         result = getattr(kern, name)(*copies)
-        runs.append((result, copies))
+        runs.append((result, _flat(copies)))
     return runs
+
+
+def _copy(value):
+    """A copy of an array, or of a record of arrays (field by field)."""
+    if isinstance(value, np.ndarray):
+        return value.copy()
+    if isinstance(value, tuple):
+        return type(value)(*(_copy(v) for v in value))
+    return value
+
+
+def _flat(values):
+    """The arrays of ``values``, records opened, in order."""
+    out = []
+    for v in values:
+        out.extend(_flat(v) if isinstance(v, tuple) else [v])
+    return out
 
 
 def _assert_same_runs(runs):
@@ -450,10 +484,17 @@ def test_compiled_and_interpreted_update_agree():
     nx = pred_mean.shape[1]
     outs = [np.empty(s) for s in [(batch, nz, nz), (batch, nz, nx), (batch, nz), (batch, nz, nz),
                                   (batch, nx), (batch, nx, nx), (batch,), (batch,)]]  # fmt: skip
-    _assert_same_runs(_both(
-        "update", pred_mean, pred_cov, x_res, z_points, weights.mean_weights, weights.cov_weights,
-        angle_mask(nz, (1,)), angle_mask(nx, (2,)), z, add_r, *outs,
-    ))  # fmt: skip
+    _assert_same_runs(
+        _both(
+            "update",
+            compiled_kernels.Prediction(pred_mean, pred_cov, x_res),
+            z_points,
+            compiled_kernels.MomentWeights(weights.mean_weights, weights.cov_weights),
+            compiled_kernels.Observed(z, add_r, angle_mask(nz, (1,))),
+            angle_mask(nx, (2,)),
+            compiled_kernels.Updated(*outs),
+        )
+    )
 
 
 def test_compiled_and_interpreted_imm_kernels_agree():

@@ -15,7 +15,11 @@ bank in one call. The model functions ``f`` and ``g`` are called by the filter b
 Layouts: sigma points ``(n, B, S)`` (component axis first, as every model function takes them),
 means ``(B, n)``, covariances ``(B, n, n)``, residuals ``(B, n, S)``. Outputs go into arrays
 the caller allocates (boxing arrays returned by a compiled function costs more than the work
-here). Angle components are given as a boolean mask: circular means, wrapped residuals.
+here). Angle components are given as a boolean mask: circular means, wrapped residuals. A
+kernel's related arrays travel as one record of a fixed shape (:class:`MomentWeights`,
+:class:`Moments`, :class:`Prediction`, :class:`Observed`, :class:`Updated`; named tuples, which
+numba compiles to plain fields), so that no kernel takes more than eight arguments and a caller
+names what it passes.
 
 Cholesky factors carry a guard: a pivot below ``PIVOT_GUARD_REL`` times its diagonal entry (or
 a non-finite one) makes the kernel report failure, and the caller factors the stack with
@@ -29,6 +33,7 @@ zero gives inf/NaN) is never relied on, and logarithms of zero go through :func:
 """
 
 import math
+from typing import NamedTuple
 
 import numba
 import numpy as np
@@ -37,6 +42,82 @@ import numpy as np
 PIVOT_GUARD_REL = 1e-10
 TWO_PI = 2.0 * math.pi
 LOG_2PI = math.log(2.0 * math.pi)
+
+
+class MomentWeights(NamedTuple):
+    """Mean and covariance weights of the sigma points, shape (S,) each (eq. 12)."""
+
+    wm: np.ndarray
+    wc: np.ndarray
+
+
+class Moments(NamedTuple):
+    """What :func:`predict_moments` writes.
+
+    The full points ``(n, B, S)``, the means ``(B, n)``, the covariances ``(B, n, n)`` and the
+    residuals ``(B, n, S)``.
+    """
+
+    points: np.ndarray
+    mean: np.ndarray
+    cov: np.ndarray
+    res: np.ndarray
+
+
+class Prediction(NamedTuple):
+    """The prediction the update starts from.
+
+    ``x(k+1|k)`` ``(B, nx)``, ``P(k+1|k)`` ``(B, nx, nx)`` and the state residuals ``X_s - x^``
+    ``(B, nx, S)`` of the points the outputs come from.
+    """
+
+    mean: np.ndarray
+    cov: np.ndarray
+    res: np.ndarray
+
+
+class Observed(NamedTuple):
+    """What was measured and how to read it.
+
+    The measurement ``z`` ``(nz,)``, the ``R`` added to ``P_zz`` ``(nz, nz)`` (zeros in the
+    augmented form) and the output's angle mask ``(nz,)``.
+    """
+
+    z: np.ndarray
+    add_r: np.ndarray
+    angle: np.ndarray
+
+
+class Updated(NamedTuple):
+    """What the update writes.
+
+    ``P_zz`` ``(B, nz, nz)``, ``P_zx`` ``(B, nz, nx)``, ``z~`` ``(B, nz)``, the factors of
+    ``P_zz`` ``(B, nz, nz)``, ``x(k+1|k+1)`` ``(B, nx)``, ``P(k+1|k+1)`` ``(B, nx, nx)``, NIS
+    ``(B,)`` and ``log Lambda`` ``(B,)``.
+    """
+
+    z_cov: np.ndarray
+    cross: np.ndarray
+    innovation: np.ndarray
+    z_chol: np.ndarray
+    mean: np.ndarray
+    cov: np.ndarray
+    nis: np.ndarray
+    log_lik: np.ndarray
+
+
+class _UpdateScratch(NamedTuple):
+    """Per-filter scratch of the update, reused across the bank."""
+
+    src: np.ndarray
+    cols: np.ndarray
+    z_mean: np.ndarray
+    xw: np.ndarray
+    trig: tuple
+    acc: np.ndarray
+    white: np.ndarray
+    white_innov: np.ndarray
+    outer: np.ndarray
 
 
 @numba.njit(cache=True, inline="always", error_model="numpy")
@@ -245,13 +326,14 @@ def _wrap_columns(cols, angle):
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _gather_moments(points, b, src, wm, angle, cols, mean, sines, cosines):
+def _gather_moments(points, b, src, wm, angle, cols, mean, trig):
     """Columns ``points[:, b, src[s]]`` into ``cols`` (S, n) and their weighted mean (eq. 16).
 
     Sums run over ``s`` in order for every row at once (independent chains, so they pipeline);
     angle rows get the circular mean ``atan2(sum w sin, sum w cos)``, with one sine and cosine
-    per distinct column (``sines``, ``cosines``: scratch of the distinct count).
+    per distinct column (``trig``: the scratch ``(sines, cosines)`` of the distinct count).
     """
+    sines, cosines = trig
     n = points.shape[0]
     nd = points.shape[2]
     n_sigma = src.size
@@ -318,14 +400,10 @@ def _weighted_outer(rt, weights, acc):
 def predict_moments(
     moved: np.ndarray,
     src: np.ndarray,
-    wm: np.ndarray,
-    wc: np.ndarray,
+    weights: MomentWeights,
     angle: np.ndarray,
     add_cov: np.ndarray,
-    x_points: np.ndarray,
-    mean: np.ndarray,
-    cov: np.ndarray,
-    res: np.ndarray,
+    out: Moments,
 ) -> None:
     """Eqs. (16)-(18): the transformed sigma points and their weighted moments.
 
@@ -344,16 +422,18 @@ def predict_moments(
     src : ndarray of int64, shape (S,)
         Column ``s`` of the full set is ``moved[:, :, src[s]]`` (the identity when every column
         is distinct).
-    wm, wc : ndarray, shape (S,)
-        Mean and covariance weights.
+    weights : MomentWeights
+        Mean and covariance weights, shape (S,) each.
     angle : ndarray of bool, shape (nx,)
         Angle rows.
     add_cov : ndarray, shape (nx, nx)
         Added to the covariance (``Q`` in the additive form; the slow states' driving noise,
         or zeros, in the augmented one).
-    x_points, mean, cov, res : ndarray, shapes (nx, B, S), (B, nx), (B, nx, nx), (B, nx, S)
+    out : Moments
         Outputs: the full points, ``x^``, ``P``, the residuals.
     """
+    wm, wc = weights
+    x_points, mean, cov, res = out
     nx, batch, nd = moved.shape
     n_sigma = src.size
     wm_d = np.zeros(nd)  # the weights of the distinct columns
@@ -365,10 +445,9 @@ def predict_moments(
     rd = np.empty((nd, nx))
     acc = np.empty((nx, nx))
     m = np.empty(nx)
-    sines = np.empty(nd)
-    cosines = np.empty(nd)
+    trig = (np.empty(nd), np.empty(nd))
     for b in range(batch):
-        _gather_moments(moved, b, distinct, wm_d, angle, rd, m, sines, cosines)  # eq. (16)
+        _gather_moments(moved, b, distinct, wm_d, angle, rd, m, trig)  # eq. (16)
         _centre_columns(rd, m, angle)  # eq. (17)
         for i in range(nx):
             mean[b, i] = m[i]
@@ -412,14 +491,15 @@ def centred(points: np.ndarray, mean: np.ndarray, angle: np.ndarray, res: np.nda
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _output_moments(
-    b, z_points, src, wm, wc, z_angle, add_r, x_res, z, zr, zm, xw, sines, cosines, acc,
-    z_cov, cross, innovation,
-):  # fmt: skip
+def _output_moments(b, z_points, weights, observed, x_res, scratch, out):
     """Eqs. (17), (19)-(21) for filter ``b``: ``P_zz + add_r``, ``P_zx`` and the innovation."""
+    wm, wc = weights
+    z, add_r, z_angle = observed
+    src, zr, zm, xw, acc = scratch.src, scratch.cols, scratch.z_mean, scratch.xw, scratch.acc
+    z_cov, cross, innovation = out.z_cov, out.cross, out.innovation
     nz, _, n_sigma = z_points.shape
     nx = x_res.shape[1]
-    _gather_moments(z_points, b, src, wm, z_angle, zr, zm, sines, cosines)  # eq. (17)
+    _gather_moments(z_points, b, src, wm, z_angle, zr, zm, scratch.trig)  # eq. (17)
     for i in range(nz):
         innovation[b, i] = z[i] - zm[i]  # eq. (21)
     _wrap_columns(innovation[b : b + 1], z_angle)
@@ -455,10 +535,7 @@ def _output_moments(
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _gain_update(
-    b, pred_mean, pred_cov, cross, innovation, z_chol, x_angle, white, white_innov, outer,
-    new_mean, new_cov, nis, log_lik,
-):  # fmt: skip
+def _gain_update(b, pred, x_angle, scratch, out):
     """Eqs. (22)-(25) for filter ``b`` from the lower factor ``L`` of ``P_zz``.
 
     The gain is never formed: with ``W = L^-1 P_zx`` and ``e = L^-1 z~``, ``K = W' L^-1``
@@ -467,6 +544,10 @@ def _gain_update(
     ``log Lambda = -(NIS + log det P_zz + nz log 2 pi) / 2`` (its printed exponent lacks the
     minus sign). Returns whether the new mean and covariance are finite.
     """
+    pred_mean, pred_cov = pred.mean, pred.cov
+    white, white_innov, outer = scratch.white, scratch.white_innov, scratch.outer
+    cross, innovation, z_chol = out.cross, out.innovation, out.z_chol
+    new_mean, new_cov, nis, log_lik = out.mean, out.cov, out.nis, out.log_lik
     nz = innovation.shape[1]
     nx = pred_mean.shape[1]
     chol = z_chol[b]
@@ -516,13 +597,24 @@ def _gain_update(
 
 
 @numba.njit(cache=True, error_model="numpy")
+def _update_scratch(nz, nx, n_sigma):
+    """Scratch of :func:`_output_moments` and :func:`_gain_update` for one bank."""
+    return _UpdateScratch(
+        np.arange(n_sigma), np.empty((n_sigma, nz)), np.empty(nz), np.empty((n_sigma, nx)),
+        (np.empty(n_sigma), np.empty(n_sigma)), np.empty((nz, nz)), np.empty((nz, nx)),
+        np.empty(nz), np.empty((nx, nx)),
+    )  # fmt: skip
+
+
+@numba.njit(cache=True, error_model="numpy")
 def update(
-    pred_mean: np.ndarray, pred_cov: np.ndarray, x_res: np.ndarray, z_points: np.ndarray,
-    wm: np.ndarray, wc: np.ndarray, z_angle: np.ndarray, x_angle: np.ndarray, z: np.ndarray,
-    add_r: np.ndarray, z_cov: np.ndarray, cross: np.ndarray, innovation: np.ndarray,
-    z_chol: np.ndarray, new_mean: np.ndarray, new_cov: np.ndarray, nis: np.ndarray,
-    log_lik: np.ndarray,
-) -> int:  # fmt: skip
+    pred: Prediction,
+    z_points: np.ndarray,
+    weights: MomentWeights,
+    observed: Observed,
+    x_angle: np.ndarray,
+    out: Updated,
+) -> int:
     """Eqs. (17), (19)-(25): output moments, innovation and the Kalman update of every filter.
 
     ``z^ = sum_s Wm_s Z_s`` (eq. 17), ``P_zz = sum_s Wc_s (Z_s - z^)(Z_s - z^)' + add_r``
@@ -531,103 +623,62 @@ def update(
 
     Parameters
     ----------
-    pred_mean, pred_cov : ndarray, shapes (B, nx), (B, nx, nx)
-        ``x(k+1|k)``, ``P(k+1|k)``.
-    x_res : ndarray, shape (B, nx, S)
-        State residuals ``X_s - x^`` of the points ``z_points`` came from.
+    pred : Prediction
+        ``x(k+1|k)``, ``P(k+1|k)`` and the state residuals of the points ``z_points`` came from.
     z_points : ndarray, shape (nz, B, S)
         ``g`` of the sigma points (eq. 15).
-    wm, wc : ndarray, shape (S,)
+    weights : MomentWeights
         Mean and covariance weights.
-    z_angle, x_angle : ndarray of bool, shapes (nz,), (nx,)
-        Angle components of the output and the state.
-    z : ndarray, shape (nz,)
-        The measurement.
-    add_r : ndarray, shape (nz, nz)
-        ``R`` in the additive form, zeros in the augmented one.
-    z_cov, cross, innovation, z_chol : ndarray, shapes (B, nz, nz), (B, nz, nx), (B, nz),
-        (B, nz, nz)
-        Outputs: ``P_zz``, ``P_zx`` (transposed ``P_xz``), ``z~``, the factors of ``P_zz``.
-    new_mean, new_cov, nis, log_lik : ndarray, shapes (B, nx), (B, nx, nx), (B,), (B,)
-        Outputs of :func:`gain_update`.
+    observed : Observed
+        The measurement, the ``R`` added to ``P_zz`` and the output's angle mask.
+    x_angle : ndarray of bool, shape (nx,)
+        Angle components of the state.
+    out : Updated
+        Outputs: ``P_zz``, ``P_zx`` (transposed ``P_xz``), ``z~``, the factors of ``P_zz``, and
+        those of :func:`gain_update`.
 
     Returns
     -------
     int
         The number of filters whose new mean or covariance is not finite; -1 when a factor of
-        ``P_zz`` failed the pivot guard: the caller then factors ``z_cov`` itself and calls
+        ``P_zz`` failed the pivot guard: the caller then factors ``out.z_cov`` itself and calls
         :func:`gain_update` (the outputs after ``z_chol`` are incomplete).
     """
     nz, batch, n_sigma = z_points.shape
-    nx = pred_mean.shape[1]
-    src = np.arange(n_sigma)
-    zr = np.empty((n_sigma, nz))
-    zm = np.empty(nz)
-    xw = np.empty((n_sigma, nx))
-    sines = np.empty(n_sigma)
-    cosines = np.empty(n_sigma)
-    acc = np.empty((nz, nz))
-    white = np.empty((nz, nx))
-    white_innov = np.empty(nz)
-    outer = np.empty((nx, nx))
+    scratch = _update_scratch(nz, pred.mean.shape[1], n_sigma)
     n_nonfinite = 0
     factored = True
     for b in range(batch):
-        _output_moments(
-            b, z_points, src, wm, wc, z_angle, add_r, x_res, z, zr, zm, xw, sines, cosines, acc,
-            z_cov, cross, innovation,
-        )  # fmt: skip
-        if not _cholesky_into(z_cov[b], z_chol[b]):
+        _output_moments(b, z_points, weights, observed, pred.res, scratch, out)
+        if not _cholesky_into(out.z_cov[b], out.z_chol[b]):
             factored = False
-        elif not _gain_update(
-            b, pred_mean, pred_cov, cross, innovation, z_chol, x_angle, white, white_innov,
-            outer, new_mean, new_cov, nis, log_lik,
-        ):  # fmt: skip
+        elif not _gain_update(b, pred, x_angle, scratch, out):
             n_nonfinite += 1
     return n_nonfinite if factored else -1
 
 
 @numba.njit(cache=True, error_model="numpy")
-def gain_update(
-    pred_mean: np.ndarray, pred_cov: np.ndarray, cross: np.ndarray, innovation: np.ndarray,
-    z_chol: np.ndarray, x_angle: np.ndarray, new_mean: np.ndarray, new_cov: np.ndarray,
-    nis: np.ndarray, log_lik: np.ndarray,
-) -> int:  # fmt: skip
-    """Eqs. (22)-(25) of every filter from given factors ``L`` of ``P_zz``.
+def gain_update(pred: Prediction, x_angle: np.ndarray, out: Updated) -> int:
+    """Eqs. (22)-(25) of every filter from given factors ``L`` of ``P_zz`` (``out.z_chol``).
 
     With ``W = L^-1 P_zx`` and ``e = L^-1 z~`` (the gain ``K = P_xz P_zz^-1`` of eq. 24 is never
     formed): ``x = x^- + W' e`` (eq. 22), ``P = P^- - W' W`` (eq. 23 with the Kalman sign; the
     paper prints ``+ K P_zz K'``), ``NIS = e' e`` and eq. (25) in log space,
     ``log Lambda = -(NIS + log det P_zz + nz log 2 pi) / 2`` (its printed exponent lacks the
-    minus sign).
-
-    Parameters
-    ----------
-    pred_mean, pred_cov : ndarray, shapes (B, nx), (B, nx, nx)
-        ``x(k+1|k)``, ``P(k+1|k)``.
-    cross, innovation, z_chol : ndarray, shapes (B, nz, nx), (B, nz), (B, nz, nz)
-        ``P_zx``, ``z~`` and lower factors of ``P_zz`` (as :func:`update` writes them).
-    x_angle : ndarray of bool, shape (nx,)
-        Angle components of the state (wrapped after the update).
-    new_mean, new_cov, nis, log_lik : ndarray, shapes (B, nx), (B, nx, nx), (B,), (B,)
-        Outputs: ``x(k+1|k+1)``, ``P(k+1|k+1)``, NIS, ``log Lambda``.
+    minus sign). ``out`` holds ``P_zx``, ``z~`` and the factors as :func:`update` writes them,
+    and takes ``x(k+1|k+1)``, ``P(k+1|k+1)``, NIS and ``log Lambda``; ``x_angle`` marks the
+    state's angles (wrapped after the update).
 
     Returns
     -------
     int
         The number of filters whose new mean or covariance is not finite.
     """
-    nz = innovation.shape[1]
-    nx = pred_mean.shape[1]
-    white = np.empty((nz, nx))
-    white_innov = np.empty(nz)
-    outer = np.empty((nx, nx))
+    nz, nx = out.cross.shape[1], pred.mean.shape[1]
+    scratch = _update_scratch(nz, nx, 0)
     n_nonfinite = 0
-    for b in range(pred_mean.shape[0]):
-        if not _gain_update(
-            b, pred_mean, pred_cov, cross, innovation, z_chol, x_angle, white, white_innov, outer,
-            new_mean, new_cov, nis, log_lik,
-        ):  # fmt: skip
+    for b in range(pred.mean.shape[0]):
+        if not _gain_update(b, pred, x_angle, scratch, out):
             n_nonfinite += 1
     return n_nonfinite
 

@@ -148,7 +148,11 @@ def unscented_transform(
     cov = np.empty((batch, m, m))
     residuals = np.empty((batch, m, s))
     kernels.predict_moments(
-        points, np.arange(s), weights.mean_weights, weights.cov_weights,
-        angle_mask(m, angle_idx), np.zeros((m, m)), np.empty_like(points), mean, cov, residuals,
-    )  # fmt: skip
+        points,
+        np.arange(s),
+        kernels.MomentWeights(weights.mean_weights, weights.cov_weights),
+        angle_mask(m, angle_idx),
+        np.zeros((m, m)),
+        kernels.Moments(np.empty_like(points), mean, cov, residuals),
+    )
     return mean, cov, residuals

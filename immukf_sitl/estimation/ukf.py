@@ -323,9 +323,13 @@ class UnscentedKalmanFilter:
         x_res = np.empty((batch, nx, n_sigma))
         # eqs. (16)-(18)
         kern.predict_moments(
-            np.ascontiguousarray(moved, dtype=float), source, weights.mean_weights,
-            weights.cov_weights, self._x_angle, added_cov, x_points, pred_mean, pred_cov, x_res,
-        )  # fmt: skip
+            np.ascontiguousarray(moved, dtype=float),
+            source,
+            kern.MomentWeights(weights.mean_weights, weights.cov_weights),
+            self._x_angle,
+            added_cov,
+            kern.Moments(x_points, pred_mean, pred_cov, x_res),
+        )
         # P(k+1|k) is symmetric by construction; counted as symmetrised (twice in the additive
         # form: the transformed covariance and the sum with Q)
         diag.symmetrised += batch if augmented else 2 * batch
@@ -365,26 +369,31 @@ class UnscentedKalmanFilter:
             z_points = model.g(t_next_s, x_points, u, None)  # eq. (15)
         z_points = np.ascontiguousarray(z_points, dtype=float)
         nz = model.nz
-        z_cov = np.empty((batch, nz, nz))
-        cross = np.empty((batch, nz, nx))
-        innovation = np.empty((batch, nz))
-        z_chol = np.empty((batch, nz, nz))
-        new_mean = np.empty((batch, nx))
-        new_cov = np.empty((batch, nx, nx))
-        nis = np.empty(batch)
-        log_likelihood = np.empty(batch)
+        out = kern.Updated(
+            np.empty((batch, nz, nz)),  # P_zz
+            np.empty((batch, nz, nx)),  # P_zx
+            np.empty((batch, nz)),  # innovation
+            np.empty((batch, nz, nz)),  # factors of P_zz
+            np.empty((batch, nx)),  # x(k+1|k+1)
+            np.empty((batch, nx, nx)),  # P(k+1|k+1)
+            np.empty(batch),  # NIS
+            np.empty(batch),  # log Lambda
+        )
+        pred = kern.Prediction(pred_mean, pred_cov, x_res)
         # eqs. (17), (19)-(25)
         n_nonfinite = kern.update(
-            pred_mean, pred_cov, x_res, z_points, weights.mean_weights, weights.cov_weights,
-            z_angle, self._x_angle, np.ascontiguousarray(measurement.z), added_r, z_cov, cross,
-            innovation, z_chol, new_mean, new_cov, nis, log_likelihood,
-        )  # fmt: skip
+            pred,
+            z_points,
+            kern.MomentWeights(weights.mean_weights, weights.cov_weights),
+            kern.Observed(np.ascontiguousarray(measurement.z), added_r, z_angle),
+            self._x_angle,
+            out,
+        )
         if n_nonfinite < 0:  # a P_zz the kernel doubts: LAPACK and the repairs factor (and count)
-            z_chol = robust_cholesky(z_cov, diag)
-            n_nonfinite = kern.gain_update(
-                pred_mean, pred_cov, cross, innovation, z_chol, self._x_angle, new_mean, new_cov,
-                nis, log_likelihood,
-            )  # fmt: skip
+            out = out._replace(z_chol=robust_cholesky(out.z_cov, diag))
+            n_nonfinite = kern.gain_update(pred, self._x_angle, out)
+        z_cov, innovation, new_mean, new_cov = out.z_cov, out.innovation, out.mean, out.cov
+        nis, log_likelihood = out.nis, out.log_lik
         if self._consider.size:  # eqs. (22)-(23), consider rows of K zeroed: x_c, P_cc kept
             kern.keep_consider(self._consider, pred_mean, pred_cov, new_mean, new_cov)
         diag.symmetrised += 2 * batch  # P_zz and P(k+1|k+1), symmetric by construction
