@@ -392,12 +392,11 @@ def test_compiled_kernels_equal_the_plain_functions(params, imu_position, densit
     # the scalar form numba compiles, run by Python on one column (numpy float64 scalars)
     k = fast._k
     xs, us, vs = x[:, 2, 5].copy(), u[:, 2, 5].copy(), v[:, 2, 5].copy()
-    one = [np.empty(12) for _ in range(4)] + [np.empty(6)]
+    work = aero_kernels.Rk4Work(*(np.empty(12) for _ in range(4)), np.empty(6))
     es = np.zeros(aero_kernels.N_EXTRA)
-    aero_kernels.uncompiled.rk4_step(
-        xs, us, vs, es, k, fast.dt_s, *one[:3], one[4], np.empty(12), one[3]
-    )
-    np.testing.assert_allclose(one[3], fast.step(0.0, xs, us, vs), **tol)
+    stepped = np.empty(12)
+    aero_kernels.uncompiled.rk4_step(xs, us, vs, es, k, fast.dt_s, work, stepped)
+    np.testing.assert_allclose(stepped, fast.step(0.0, xs, us, vs), **tol)
     imu = np.empty(6)
     aero_kernels.uncompiled.imu(xs, us, es, k, np.empty(6), np.empty(12), imu)
     np.testing.assert_allclose(imu, fast.imu(0.0, xs, us), **tol)

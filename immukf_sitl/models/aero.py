@@ -402,11 +402,11 @@ class AeroModel:
                 x2, u2, v2, e2, self._k, self.dt_s, period, out.reshape(x.shape[0], n)
             )
         else:
-            scratch = [np.empty(x.shape) for _ in range(3)] + [np.empty((6, *x.shape[1:]))]
-            e = np.zeros(kernels.N_EXTRA) if e is None else e
-            kernels.uncompiled.rk4_step(
-                x, u, self._rows(x, v), e, self._k, self.dt_s, *scratch, np.empty(x.shape), out
+            work = kernels.Rk4Work(
+                *(np.empty(x.shape) for _ in range(4)), np.empty((6, *x.shape[1:]))
             )
+            e = np.zeros(kernels.N_EXTRA) if e is None else e
+            kernels.uncompiled.rk4_step(x, u, self._rows(x, v), e, self._k, self.dt_s, work, out)
         return out
 
     # -----------------------------------------------------------------------------------------

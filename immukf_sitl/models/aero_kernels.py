@@ -46,7 +46,7 @@ import dataclasses
 import math
 import types
 from collections.abc import Callable
-from typing import TypeAlias
+from typing import NamedTuple, TypeAlias
 
 import numba
 import numpy as np
@@ -59,12 +59,14 @@ __all__ = [
     "N_DYNAMIC_EXTRA",
     "N_EXTRA",
     "N_OUTPUT_EXTRA",
+    "Rk4Work",
     "air_density",
     "air_relative",
     "angular_acceleration",
     "derivatives",
     "derivatives_batch",
     "drag_coefficient",
+    "euler_trig",
     "forces_moments",
     "forces_moments_batch",
     "gps",
@@ -305,18 +307,13 @@ def air_density(p_d: Value, rho_const: float, h0: float) -> Value:
 
 
 @_kernel
-def _lateral(
-    k: np.ndarray,
-    i: int,
-    qbar: Value,
-    qv: Value,
-    beta: Value,
-    bp: Value,
-    br: Value,
-    delta_a: Value,
-    delta_r: Value,
-) -> Value:
-    """Bracket of B&M eqs. (4.14), (4.19) for the lateral axis whose ``C_0`` is ``k[i]``."""
+def _lateral(k: np.ndarray, i: int, flow: tuple) -> Value:
+    """Bracket of B&M eqs. (4.14), (4.19) for the lateral axis whose ``C_0`` is ``k[i]``.
+
+    ``flow`` is ``(qbar, qv, beta, b p / 2, b r / 2, delta_a, delta_r)``, the same for the side
+    force, the rolling and the yawing moment.
+    """
+    qbar, qv, beta, bp, br, delta_a, delta_r = flow
     # k[i:i + 6]: C_0, C_beta, C_p, C_r, C_delta_a, C_delta_r
     static = k[i] + k[i + 1] * beta + k[i + 4] * delta_a + k[i + 5] * delta_r
     return qbar * static + qv * (k[i + 2] * bp + k[i + 3] * br)
@@ -354,17 +351,16 @@ def forces_moments(x: np.ndarray, u: np.ndarray, k: np.ndarray, out: np.ndarray)
     drag = s * (qbar * (c_drag + k[CDDE] * delta_e) + qv * k[CDQ] * cq)  # B&M eq. (4.7)
     thrust, torque = propeller(va, delta_t, rho, k)
 
-    bp = k[B_2] * p
-    br = k[B_2] * r
+    lateral = (qbar, qv, beta, k[B_2] * p, k[B_2] * r, delta_a, delta_r)
     out[0] = -cos_a * drag + sin_a * lift + thrust  # B&M eq. (4.18): stability -> body
-    out[1] = s * _lateral(k, CY0, qbar, qv, beta, bp, br, delta_a, delta_r)  # B&M eq. (4.14)
+    out[1] = s * _lateral(k, CY0, lateral)  # B&M eq. (4.14)
     out[2] = -sin_a * drag - cos_a * lift  # B&M eq. (4.18)
     # B&M eq. (4.19): moments in body axes; the propeller torque's reaction if switched on
-    roll = s * k[B] * _lateral(k, CELL0, qbar, qv, beta, bp, br, delta_a, delta_r)
+    roll = s * k[B] * _lateral(k, CELL0, lateral)
     out[3] = roll - k[TORQUE_ON_ROLL] * torque
     pitch_static = k[CM0] + k[CMA] * alpha + k[CMDE] * delta_e
     out[4] = s * k[C] * (qbar * pitch_static + qv * k[CMQ] * cq)
-    out[5] = s * k[B] * _lateral(k, CN0, qbar, qv, beta, bp, br, delta_a, delta_r)
+    out[5] = s * k[B] * _lateral(k, CN0, lateral)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -372,18 +368,18 @@ def forces_moments(x: np.ndarray, u: np.ndarray, k: np.ndarray, out: np.ndarray)
 
 
 @_kernel
-def rotate_body_to_ned(
-    uu: Value,
-    vv: Value,
-    ww: Value,
-    sph: Value,
-    cph: Value,
-    sth: Value,
-    cth: Value,
-    sps: Value,
-    cps: Value,
-) -> tuple[Value, Value, Value]:
-    """Body vector to NED, ``R_nb = Rz(psi) Ry(theta) Rx(phi)`` of B&M eq. (3.14)."""
+def euler_trig(x: np.ndarray) -> tuple:
+    """``(sin phi, cos phi, sin theta, cos theta, sin psi, cos psi)`` of the state ``x``."""
+    return np.sin(x[6]), np.cos(x[6]), np.sin(x[7]), np.cos(x[7]), np.sin(x[8]), np.cos(x[8])
+
+
+@_kernel
+def rotate_body_to_ned(uu: Value, vv: Value, ww: Value, trig: tuple) -> tuple[Value, Value, Value]:
+    """Body vector to NED, ``R_nb = Rz(psi) Ry(theta) Rx(phi)`` of B&M eq. (3.14).
+
+    ``trig`` is :func:`euler_trig` of the attitude.
+    """
+    sph, cph, sth, cth, sps, cps = trig
     sph_sth = sph * sth
     cph_sth = cph * sth
     north = cth * cps * uu + (sph_sth * cps - cph * sps) * vv + (cph_sth * cps + sph * sps) * ww
@@ -405,17 +401,10 @@ def angular_acceleration(
 
 @_kernel
 def rotate_ned_to_body(
-    north: Value,
-    east: Value,
-    down: Value,
-    sph: Value,
-    cph: Value,
-    sth: Value,
-    cth: Value,
-    sps: Value,
-    cps: Value,
+    north: Value, east: Value, down: Value, trig: tuple
 ) -> tuple[Value, Value, Value]:
     """NED vector to body, ``R_bn = R_nb'`` (the transpose of :func:`rotate_body_to_ned`)."""
+    sph, cph, sth, cth, sps, cps = trig
     sph_sth = sph * sth
     cph_sth = cph * sth
     x = cth * cps * north + cth * sps * east - sth * down
@@ -425,28 +414,16 @@ def rotate_ned_to_body(
 
 
 @_kernel
-def air_relative(
-    x: np.ndarray,
-    e: np.ndarray,
-    sph: Value,
-    cph: Value,
-    sth: Value,
-    cth: Value,
-    sps: Value,
-    cps: Value,
-    xa: np.ndarray,
-) -> None:
+def air_relative(x: np.ndarray, e: np.ndarray, trig: tuple, xa: np.ndarray) -> None:
     """``x`` made relative to the air moving at ``e[0:3]`` (NED) and turning at ``e[9:12]``.
 
     The forces and moments depend on the velocity through the air, ``v_a = v_g - R_bn w``
     (B&M eq. 2.5), and on the rates relative to the air, ``omega - omega_g`` (the rotational
     gusts of MIL-F-8785C, applied so by JSBSim); the rigid-body equations keep the ground
-    velocity and the inertial rates. ``sph`` ... ``cps`` are the sines and cosines of ``x``'s
-    Euler angles (the caller has them).
+    velocity and the inertial rates. ``trig`` is :func:`euler_trig` of ``x`` (the caller has
+    it).
     """
-    w_u, w_v, w_w = rotate_ned_to_body(
-        e[WIND_N], e[WIND_E], e[WIND_D], sph, cph, sth, cth, sps, cps
-    )
+    w_u, w_v, w_w = rotate_ned_to_body(e[WIND_N], e[WIND_E], e[WIND_D], trig)
     for i in range(12):
         xa[i] = x[i]
     xa[3] = x[3] - w_u
@@ -478,14 +455,13 @@ def derivatives(
     """
     uu, vv, ww = x[3], x[4], x[5]
     p, q, r = x[9], x[10], x[11]
-    sph, cph = np.sin(x[6]), np.cos(x[6])
-    sth, cth = np.sin(x[7]), np.cos(x[7])
-    sps, cps = np.sin(x[8]), np.cos(x[8])
-    north, east, down = rotate_body_to_ned(uu, vv, ww, sph, cph, sth, cth, sps, cps)
+    trig = euler_trig(x)
+    sph, cph, sth, cth, _, _ = trig
+    north, east, down = rotate_body_to_ned(uu, vv, ww, trig)
     out[0] = north  # B&M eq. (3.14)
     out[1] = east
     out[2] = down
-    air_relative(x, e, sph, cph, sth, cth, sps, cps, xa)
+    air_relative(x, e, trig, xa)
     forces_moments(xa, u, k, fm)
     grav = k[G0] + k[DG] * x[2]
     inv_m = k[INV_MASS]
@@ -509,6 +485,20 @@ def wrap_pi(angle: Value) -> Value:
     return (angle + np.pi) % (2.0 * np.pi) - np.pi
 
 
+class Rk4Work(NamedTuple):
+    """Scratch of :func:`rk4_step`.
+
+    The stage state, derivative and sum and the air-relative state (12 rows each), the forces
+    and moments (6 rows).
+    """
+
+    xt: np.ndarray
+    kk: np.ndarray
+    acc: np.ndarray
+    xa: np.ndarray
+    fm: np.ndarray
+
+
 @_kernel
 def rk4_step(
     x: np.ndarray,
@@ -517,17 +507,11 @@ def rk4_step(
     e: np.ndarray,
     k: np.ndarray,
     dt: float,
-    xt: np.ndarray,
-    kk: np.ndarray,
-    acc: np.ndarray,
-    fm: np.ndarray,
-    xa: np.ndarray,
+    work: Rk4Work,
     out: np.ndarray,
 ) -> None:
-    """Classical RK4 of ``x[0:12]`` over ``dt``, u, v and e held, into ``out``; phi, psi wrapped.
-
-    ``xt``, ``kk``, ``acc``, ``xa`` (12 rows) and ``fm`` (6 rows) are scratch.
-    """
+    """Classical RK4 of ``x[0:12]`` over ``dt``, u, v and e held, into ``out``; phi, psi wrapped."""
+    xt, kk, acc, xa, fm = work
     half = 0.5 * dt
     for i in range(12):
         xt[i] = x[i]
@@ -569,10 +553,7 @@ def imu(
     ``+ omega_dot x r + omega x (omega x r)`` when the lever arm is non-zero; the gyros read the
     body rates plus their biases.
     """
-    sph, cph = np.sin(x[6]), np.cos(x[6])
-    sth, cth = np.sin(x[7]), np.cos(x[7])
-    sps, cps = np.sin(x[8]), np.cos(x[8])
-    air_relative(x, e, sph, cph, sth, cth, sps, cps, xa)
+    air_relative(x, e, euler_trig(x), xa)
     forces_moments(xa, u, k, fm)
     p, q, r = x[9], x[10], x[11]
     inv_m = k[INV_MASS]
@@ -604,10 +585,7 @@ def gps(x: np.ndarray, e: np.ndarray, out: np.ndarray) -> None:
     horizontal, ``hypot(vN, vE)``, and course ``atan2(vE, vN)`` in (-pi, pi], both of the
     velocity over the ground (the state's velocity; the wind does not enter).
     """
-    sph, cph = np.sin(x[6]), np.cos(x[6])
-    sth, cth = np.sin(x[7]), np.cos(x[7])
-    sps, cps = np.sin(x[8]), np.cos(x[8])
-    v_n, v_e, _ = rotate_body_to_ned(x[3], x[4], x[5], sph, cph, sth, cth, sps, cps)
+    v_n, v_e, _ = rotate_body_to_ned(x[3], x[4], x[5], euler_trig(x))
     out[0] = x[0] + e[GPS_ERROR_N]
     out[1] = x[1] + e[GPS_ERROR_N + 1]
     out[2] = x[2] + e[GPS_ERROR_N + 2]
@@ -667,8 +645,9 @@ def step_batch(
     ``period = 1`` compares nothing. Returns the number of columns that took their group's
     result.
     """
-    xs, xt, kk, acc, xo = np.empty(12), np.empty(12), np.empty(12), np.empty(12), np.empty(12)
-    us, vs, es, fm, xa = np.empty(4), np.empty(6), np.empty(N_EXTRA), np.empty(6), np.empty(12)
+    xs, xo = np.empty(12), np.empty(12)
+    us, vs, es = np.empty(4), np.empty(6), np.empty(N_EXTRA)
+    work = Rk4Work(np.empty(12), np.empty(12), np.empty(12), np.empty(12), np.empty(6))
     n_reused = 0
     for j in range(x.shape[1]):
         first = j - j % period
@@ -688,7 +667,7 @@ def step_batch(
         _column(u, j, us)
         _column(v, j, vs)
         _column(e, j, es)
-        rk4_step(xs, us, vs, es, k, dt, xt, kk, acc, fm, xa, xo)
+        rk4_step(xs, us, vs, es, k, dt, work, xo)
         for i in range(12):
             out[i, j] = xo[i]
     return n_reused
