@@ -19,7 +19,9 @@ here). Angle components are given as a boolean mask: circular means, wrapped res
 kernel's related arrays travel as one record of a fixed shape (:class:`MomentWeights`,
 :class:`Moments`, :class:`Prediction`, :class:`Observed`, :class:`Updated`; named tuples, which
 numba compiles to plain fields), so that no kernel takes more than eight arguments and a caller
-names what it passes.
+names what it passes. The kernels read the records by position (the field order is the
+record's), so a caller on the hot path may pass plain tuples: numba types a plain tuple of
+arrays faster than a named one at every call.
 
 Cholesky factors carry a guard: a pivot below ``PIVOT_GUARD_REL`` times its diagonal entry (or
 a non-finite one) makes the kernel report failure, and the caller factors the stack with
@@ -496,7 +498,7 @@ def _output_moments(b, z_points, weights, observed, x_res, scratch, out):
     wm, wc = weights
     z, add_r, z_angle = observed
     src, zr, zm, xw, acc = scratch.src, scratch.cols, scratch.z_mean, scratch.xw, scratch.acc
-    z_cov, cross, innovation = out.z_cov, out.cross, out.innovation
+    z_cov, cross, innovation = out[0], out[1], out[2]  # Updated's first three
     nz, _, n_sigma = z_points.shape
     nx = x_res.shape[1]
     _gather_moments(z_points, b, src, wm, z_angle, zr, zm, scratch.trig)  # eq. (17)
@@ -544,10 +546,9 @@ def _gain_update(b, pred, x_angle, scratch, out):
     ``log Lambda = -(NIS + log det P_zz + nz log 2 pi) / 2`` (its printed exponent lacks the
     minus sign). Returns whether the new mean and covariance are finite.
     """
-    pred_mean, pred_cov = pred.mean, pred.cov
+    pred_mean, pred_cov, _ = pred
     white, white_innov, outer = scratch.white, scratch.white_innov, scratch.outer
-    cross, innovation, z_chol = out.cross, out.innovation, out.z_chol
-    new_mean, new_cov, nis, log_lik = out.mean, out.cov, out.nis, out.log_lik
+    _, cross, innovation, z_chol, new_mean, new_cov, nis, log_lik = out
     nz = innovation.shape[1]
     nx = pred_mean.shape[1]
     chol = z_chol[b]
@@ -644,13 +645,15 @@ def update(
         ``P_zz`` failed the pivot guard: the caller then factors ``out.z_cov`` itself and calls
         :func:`gain_update` (the outputs after ``z_chol`` are incomplete).
     """
+    pred_mean, _, x_res = pred
+    z_cov, _, _, z_chol, _, _, _, _ = out
     nz, batch, n_sigma = z_points.shape
-    scratch = _update_scratch(nz, pred.mean.shape[1], n_sigma)
+    scratch = _update_scratch(nz, pred_mean.shape[1], n_sigma)
     n_nonfinite = 0
     factored = True
     for b in range(batch):
-        _output_moments(b, z_points, weights, observed, pred.res, scratch, out)
-        if not _cholesky_into(out.z_cov[b], out.z_chol[b]):
+        _output_moments(b, z_points, weights, observed, x_res, scratch, out)
+        if not _cholesky_into(z_cov[b], z_chol[b]):
             factored = False
         elif not _gain_update(b, pred, x_angle, scratch, out):
             n_nonfinite += 1
@@ -674,10 +677,11 @@ def gain_update(pred: Prediction, x_angle: np.ndarray, out: Updated) -> int:
     int
         The number of filters whose new mean or covariance is not finite.
     """
-    nz, nx = out.cross.shape[1], pred.mean.shape[1]
+    pred_mean = pred[0]
+    nz, nx = out[1].shape[1], pred_mean.shape[1]  # from P_zx and x(k+1|k)
     scratch = _update_scratch(nz, nx, 0)
     n_nonfinite = 0
-    for b in range(pred.mean.shape[0]):
+    for b in range(pred_mean.shape[0]):
         if not _gain_update(b, pred, x_angle, scratch, out):
             n_nonfinite += 1
     return n_nonfinite

@@ -325,10 +325,10 @@ class UnscentedKalmanFilter:
         kern.predict_moments(
             np.ascontiguousarray(moved, dtype=float),
             source,
-            kern.MomentWeights(weights.mean_weights, weights.cov_weights),
+            (weights.mean_weights, weights.cov_weights),  # MomentWeights
             self._x_angle,
             added_cov,
-            kern.Moments(x_points, pred_mean, pred_cov, x_res),
+            (x_points, pred_mean, pred_cov, x_res),  # Moments
         )
         # P(k+1|k) is symmetric by construction; counted as symmetrised (twice in the additive
         # form: the transformed covariance and the sum with Q)
@@ -369,7 +369,7 @@ class UnscentedKalmanFilter:
             z_points = model.g(t_next_s, x_points, u, None)  # eq. (15)
         z_points = np.ascontiguousarray(z_points, dtype=float)
         nz = model.nz
-        out = kern.Updated(
+        out = (  # Updated
             np.empty((batch, nz, nz)),  # P_zz
             np.empty((batch, nz, nx)),  # P_zx
             np.empty((batch, nz)),  # innovation
@@ -379,21 +379,20 @@ class UnscentedKalmanFilter:
             np.empty(batch),  # NIS
             np.empty(batch),  # log Lambda
         )
-        pred = kern.Prediction(pred_mean, pred_cov, x_res)
+        pred = (pred_mean, pred_cov, x_res)  # Prediction
         # eqs. (17), (19)-(25)
         n_nonfinite = kern.update(
             pred,
             z_points,
-            kern.MomentWeights(weights.mean_weights, weights.cov_weights),
-            kern.Observed(np.ascontiguousarray(measurement.z), added_r, z_angle),
+            (weights.mean_weights, weights.cov_weights),  # MomentWeights
+            (np.ascontiguousarray(measurement.z), added_r, z_angle),  # Observed
             self._x_angle,
             out,
         )
+        z_cov, _, innovation, _, new_mean, new_cov, nis, log_likelihood = out
         if n_nonfinite < 0:  # a P_zz the kernel doubts: LAPACK and the repairs factor (and count)
-            out = out._replace(z_chol=robust_cholesky(out.z_cov, diag))
+            out = (*out[:3], robust_cholesky(z_cov, diag), *out[4:])
             n_nonfinite = kern.gain_update(pred, self._x_angle, out)
-        z_cov, innovation, new_mean, new_cov = out.z_cov, out.innovation, out.mean, out.cov
-        nis, log_likelihood = out.nis, out.log_lik
         if self._consider.size:  # eqs. (22)-(23), consider rows of K zeroed: x_c, P_cc kept
             kern.keep_consider(self._consider, pred_mean, pred_cov, new_mean, new_cov)
         diag.symmetrised += 2 * batch  # P_zz and P(k+1|k+1), symmetric by construction
