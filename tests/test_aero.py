@@ -21,7 +21,7 @@ from immukf_sitl.models.aero import (
 from immukf_sitl.models.earth import NedOrigin, isa_density_kgpm3, normal_gravity_mps2
 from immukf_sitl.models.params import load_aircraft_params
 
-BACKENDS = ["numpy", "numba"]
+COMPILED = [False, True]
 
 
 @pytest.fixture(scope="module")
@@ -31,7 +31,7 @@ def params():
 
 @pytest.fixture(scope="module")
 def model(params) -> AeroModel:
-    return AeroModel(params, origin=NedOrigin(47.0, 8.0, 400.0), backend="numpy")
+    return AeroModel(params, origin=NedOrigin(47.0, 8.0, 400.0), compiled=False)
 
 
 def random_states(rng: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
@@ -117,9 +117,9 @@ def test_free_fall_is_a_parabola(params) -> None:
     np.testing.assert_allclose(m.imu(0.0, x, u)[0:3], 0.0, atol=1e-12)
 
 
-@pytest.mark.parametrize("backend", BACKENDS)
-def test_torque_free_rotation_conserves_momentum_and_energy(params, backend: str) -> None:
-    m = dataclasses.replace(vacuum_model(params, 0.0), backend=backend)
+@pytest.mark.parametrize("compiled", COMPILED)
+def test_torque_free_rotation_conserves_momentum_and_energy(params, compiled: bool) -> None:
+    m = dataclasses.replace(vacuum_model(params, 0.0), compiled=compiled)
     inertia = params.mass.inertia_kgm2
     x = np.zeros(12)
     x[3] = 1.0
@@ -195,7 +195,7 @@ def test_specific_force_is_what_an_accelerometer_measures(params) -> None:
         p = dataclasses.replace(
             params, geometry=dataclasses.replace(params.geometry, imu_position_m=imu_position)
         )
-        m = AeroModel(p, dt_s=2e-5, gravity_mps2=9.8, gravity_gradient_ps2=0.0, backend="numpy")
+        m = AeroModel(p, dt_s=2e-5, gravity_mps2=9.8, gravity_gradient_ps2=0.0, compiled=False)
         x0, u0 = m.trim(25.0)
         x0[9:12] = [0.4, 0.2, -0.3]  # manoeuvring: rates and angular accelerations
         u0 = u0 + [0.05, 0.1, -0.05, 0.0]
@@ -215,7 +215,7 @@ def test_specific_force_is_what_an_accelerometer_measures(params) -> None:
         np.testing.assert_allclose(f_model[3:6], x0[9:12])
         if any(imu_position):
             # the lever arm matters at these rates: the CG's specific force differs
-            f_cg = AeroModel(params, gravity_mps2=9.8, backend="numpy").imu(0.0, x0, u0)
+            f_cg = AeroModel(params, gravity_mps2=9.8, compiled=False).imu(0.0, x0, u0)
             assert np.max(np.abs(f_cg[0:3] - f_model[0:3])) > 0.05
 
 
@@ -236,7 +236,7 @@ def test_stall_blending_lift_and_linear_drag(params) -> None:
     )
     assert drag_coefficient(-0.1, a) == pytest.approx(a.C_D_0 - 0.1 * a.C_D_alpha)
     # the model's lift and drag in stability axes are these laws
-    m = AeroModel(params, density_kgpm3=1.2, backend="numpy")
+    m = AeroModel(params, density_kgpm3=1.2, compiled=False)
     va, alpha = 24.0, 0.08
     x = np.zeros(12)
     x[3], x[5] = va * np.cos(alpha), va * np.sin(alpha)
@@ -281,11 +281,11 @@ def test_propeller_matches_the_advance_ratio_form(params) -> None:
 def test_prop_torque_rolls_the_airframe_negatively(params) -> None:
     x = np.zeros(12)
     x[3] = 25.0
-    on = AeroModel(params, backend="numpy").forces_moments(0.0, x, np.array([0, 0, 0, 1.0]))
+    on = AeroModel(params, compiled=False).forces_moments(0.0, x, np.array([0, 0, 0, 1.0]))
     no_torque = dataclasses.replace(
         params, propulsion=dataclasses.replace(params.propulsion, prop_torque_on_roll=False)
     )
-    off = AeroModel(no_torque, backend="numpy").forces_moments(0.0, x, np.array([0, 0, 0, 1.0]))
+    off = AeroModel(no_torque, compiled=False).forces_moments(0.0, x, np.array([0, 0, 0, 1.0]))
     _, torque = propeller_thrust_torque(25.0, 1.0, isa_density_kgpm3(0.0), params)
     assert torque > 0.0
     assert on[3] == pytest.approx(off[3] - torque, rel=1e-12)
@@ -303,14 +303,12 @@ def test_control_signs_follow_the_conventions(model: AeroModel) -> None:
 
 
 def test_isa_density_at_altitude_is_used(params) -> None:
-    m = AeroModel(params, origin=NedOrigin(0.0, 0.0, 100.0), backend="numpy")
+    m = AeroModel(params, origin=NedOrigin(0.0, 0.0, 100.0), compiled=False)
     x = np.zeros((12, 2))
     x[3] = 25.0
     x[2] = [0.0, -1000.0]  # 100 m and 1100 m
     fm = m.forces_moments(0.0, x, np.zeros(4))
-    const = AeroModel(params, density_kgpm3=1.0, backend="numpy").forces_moments(
-        0.0, x, np.zeros(4)
-    )
+    const = AeroModel(params, density_kgpm3=1.0, compiled=False).forces_moments(0.0, x, np.zeros(4))
     ratio = fm[2] / const[2]  # lift is proportional to density
     np.testing.assert_allclose(ratio, isa_density_kgpm3([100.0, 1100.0]), rtol=1e-12)
 
@@ -332,9 +330,9 @@ def test_process_noise_enters_the_acceleration_states(model: AeroModel) -> None:
     assert len(model.state_labels) == 12
 
 
-@pytest.mark.parametrize("backend", BACKENDS)
-def test_batch_equals_column_by_column(params, backend: str) -> None:
-    m = AeroModel(params, origin=NedOrigin(47.0, 8.0, 400.0), backend=backend)
+@pytest.mark.parametrize("compiled", COMPILED)
+def test_batch_equals_column_by_column(params, compiled: bool) -> None:
+    m = AeroModel(params, origin=NedOrigin(47.0, 8.0, 400.0), compiled=compiled)
     rng = np.random.default_rng(3)
     x = random_states(rng, (7, 49))
     v = rng.standard_normal((6, 7, 49))
@@ -372,8 +370,8 @@ def test_compiled_kernels_equal_the_plain_functions(params, imu_position, densit
     """numba's loops against the same functions run by Python, over rows and on one column."""
     geometry = dataclasses.replace(params.geometry, imu_position_m=imu_position)
     p = dataclasses.replace(params, geometry=geometry)
-    plain = AeroModel(p, NedOrigin(47.0, 8.0, 400.0), density_kgpm3=density_kgpm3, backend="numpy")
-    fast = dataclasses.replace(plain, backend="numba")
+    plain = AeroModel(p, NedOrigin(47.0, 8.0, 400.0), density_kgpm3=density_kgpm3, compiled=False)
+    fast = dataclasses.replace(plain, compiled=True)
     assert fast.uses_numba and not plain.uses_numba
     rng = np.random.default_rng(4)
     x = random_states(rng, (7, 49))
@@ -410,7 +408,7 @@ def test_public_laws_are_the_model_kernels(params) -> None:
         alpha, np.sin(alpha), np.cos(alpha), a.C_L_0, a.C_L_alpha, a.M, a.alpha0_rad
     )
     np.testing.assert_array_equal(lift_coefficient(alpha, a), expected)
-    k = AeroModel(params, backend="numpy")._k
+    k = AeroModel(params, compiled=False)._k
     thrust, torque = aero_kernels.uncompiled.propeller(25.0, np.array([0.5, 0.9]), 1.1, k)
     np.testing.assert_array_equal(
         propeller_thrust_torque(25.0, np.array([0.5, 0.9]), 1.1, params), (thrust, torque)
@@ -423,5 +421,5 @@ def test_invalid_model_settings(params) -> None:
         AeroModel(params, dt_s=0.0)
     with pytest.raises(ValueError, match="density_kgpm3: expected >= 0"):
         AeroModel(params, density_kgpm3=-1.0)
-    with pytest.raises(ValueError, match="backend: expected"):
-        AeroModel(params, backend="cuda")
+    with pytest.raises(ValueError, match="compiled: expected True or False"):
+        AeroModel(params, compiled="numpy")

@@ -6,9 +6,9 @@ numpy aerodynamic model) produced on 250 steps of ``immukf_sitl.experiments.benc
 both noise forms: at every fifth step (the GPS steps among them) the combined mean and
 covariance diagonal, the mode probabilities, every mode's log-likelihood and NIS; the final
 mode-matched estimates; the safeguard counters. The filter's compiled kernels, over either
-backend of the aerodynamic model (numpy or compiled), must reproduce it to 1e-9 relative (the
+aerodynamic model compiled or not, must reproduce it to 1e-9 relative (the
 kernels sum in another order than the numpy filter did, so bitwise equality is not asked for),
-and the counters exactly. (The filter's interpreted kernels, ``backend="python"``, are held to
+and the counters exactly. (The filter's interpreted kernels, ``compiled=False``, are held to
 the compiled ones by ``tests/test_compiled_kernels.py``; a run of this length interpreted
 would take minutes.)
 
@@ -36,20 +36,20 @@ FORMS = ("augmented", "additive")
 #: Relative agreement asked of every array, measured against the array's largest entry per step.
 RTOL = 1e-9
 HAS_NUMBA = importlib.util.find_spec("numba") is not None
-#: Backends of the aerodynamic model; the filter always runs its compiled kernels.
-MODEL_BACKENDS = [
-    "numpy",
-    pytest.param("numba", marks=pytest.mark.skipif(not HAS_NUMBA, reason="no numba")),
+#: The aerodynamic model uncompiled and compiled; the filter always runs its compiled kernels.
+MODEL_COMPILED = [
+    pytest.param(False, id="uncompiled"),
+    pytest.param(True, id="compiled", marks=pytest.mark.skipif(not HAS_NUMBA, reason="no numba")),
 ]
 
 
-def run_bank(form: str, model_backend: str) -> dict[str, np.ndarray]:
+def run_bank(form: str, model_compiled: bool) -> dict[str, np.ndarray]:
     """Every recorded output of the 7-mode bank over the fixture flight."""
     params = load_aircraft_params()
-    data = make_flight(AeroModel(params, ORIGIN, backend="numpy"), N_STEPS, seed=1)
-    model = AeroModel(params, ORIGIN, backend=model_backend)
+    data = make_flight(AeroModel(params, ORIGIN, compiled=False), N_STEPS, seed=1)
+    model = AeroModel(params, ORIGIN, compiled=model_compiled)
     est = build_aero_estimator("imm", model, noise_form=form)
-    assert est.imm.ukf.backend == "numba"
+    assert est.imm.ukf.compiled
     estimate = est.start(0.0, *est.augmented(data.x0, initial_cov()), data.controls[0])
     rows: dict[str, list[np.ndarray]] = {
         "mean": [], "cov_diag": [], "mode_probabilities": [], "log_likelihoods": [], "nis": []
@@ -81,11 +81,11 @@ def _relative_error(actual: np.ndarray, expected: np.ndarray) -> float:
     return float(np.max(np.abs(actual - expected) / np.maximum(scale, 1e-300)))
 
 
-@pytest.mark.parametrize("model_backend", MODEL_BACKENDS)
+@pytest.mark.parametrize("model_compiled", MODEL_COMPILED)
 @pytest.mark.parametrize("form", FORMS)
-def test_bank_reproduces_the_recorded_run(form: str, model_backend: str) -> None:
+def test_bank_reproduces_the_recorded_run(form: str, model_compiled: bool) -> None:
     expected = np.load(FIXTURE)
-    actual = run_bank(form, model_backend)
+    actual = run_bank(form, model_compiled)
     for name, values in actual.items():
         reference = expected[f"{form}/{name}"]
         assert values.shape == reference.shape, name

@@ -60,7 +60,7 @@ def test_coordinated_turn_is_a_circle() -> None:
 
 def test_ins_fed_by_the_aero_model_imu_follows_the_aero_model() -> None:
     origin = NedOrigin(47.0, 8.0, 400.0)
-    aero = AeroModel(load_aircraft_params(), origin=origin, backend="numpy")
+    aero = AeroModel(load_aircraft_params(), origin=origin, compiled=False)
     ins = InsModel(origin=origin)
     xa, ua = aero.trim(25.0, 0.03)
     rot = Rotation.from_euler("ZYX", xa[8:5:-1])

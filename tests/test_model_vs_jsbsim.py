@@ -51,7 +51,7 @@ def manoeuvre(params):
 def test_forces_and_moments_equal_the_aero_model(params, manoeuvre):
     state, aero_state, forces, moments, _, rho, origin = manoeuvre
     assert abs(state.euler_rad[0]) > 0.2 and abs(state.beta_rad) > 0.005  # a real manoeuvre
-    model = AeroModel(params, origin=NedOrigin(*origin), density_kgpm3=rho, backend="numpy")
+    model = AeroModel(params, origin=NedOrigin(*origin), density_kgpm3=rho, compiled=False)
     predicted = model.forces_moments(0.0, aero_state, state.controls)
     print("JSBSim forces/moments", forces, moments)
     print("AeroModel            ", predicted[:3], predicted[3:])
@@ -63,12 +63,12 @@ def test_forces_and_moments_equal_the_aero_model(params, manoeuvre):
 def test_angular_accelerations_have_the_book_inertia_signs(params, manoeuvre):
     """Catches the Ixz sign trap: with the wrong sign roll and yaw accelerations differ a lot."""
     state, _, _, _, omega_dot, rho, origin = manoeuvre
-    model = AeroModel(params, origin=NedOrigin(*origin), density_kgpm3=rho, backend="numpy")
+    model = AeroModel(params, origin=NedOrigin(*origin), density_kgpm3=rho, compiled=False)
     xdot = model.derivatives(0.0, state.state_vector(), state.controls)
     flipped = dataclasses.replace(
         params, mass=dataclasses.replace(params.mass, Jxz_kgm2=-params.mass.Jxz_kgm2)
     )
-    wrong = AeroModel(flipped, origin=NedOrigin(*origin), density_kgpm3=rho, backend="numpy")
+    wrong = AeroModel(flipped, origin=NedOrigin(*origin), density_kgpm3=rho, compiled=False)
     xdot_wrong = wrong.derivatives(0.0, state.state_vector(), state.controls)
     print("JSBSim omega_dot", omega_dot, "AeroModel", xdot[9:12], "Ixz flipped", xdot_wrong[9:12])
     # The model damps with inertial rates, JSBSim with air-relative ones (the earth rate

@@ -2,7 +2,7 @@
 
 Every kernel is a plain Python function in the subset numba compiles, decorated with
 ``numba.njit``. The filter calls the compiled functions; the same source run by the interpreter
-(:func:`immukf_sitl.estimation.ukf.load_kernels` with ``"python"``, which loads this module
+(:func:`immukf_sitl.estimation.ukf.load_kernels` with ``compiled=False``, which loads this module
 with ``numba.config.DISABLE_JIT``) is the uncompiled reference that
 ``tests/test_compiled_kernels.py`` compares them with, kernel by kernel and filter by filter.
 The independent checks of the maths (closed-form unscented transforms, the linear Kalman

@@ -16,8 +16,8 @@ Two noise forms:
 The filter's arithmetic is in :mod:`immukf_sitl.estimation.kernels`, four calls per step in
 the augmented form, seven in the additive one; this module calls ``f`` and ``g`` between them,
 applies the safeguards and counts them in :class:`FilterDiagnostics`. The kernels run compiled
-(``backend="numba"``, the default) or, for debugging and for the tests that compare the two,
-interpreted (``backend="python"``, the same source without numba; hundreds of times slower).
+(``compiled=True``, the default) or, for debugging and for the tests that compare the two,
+uncompiled (``compiled=False``, the same source run by Python; hundreds of times slower).
 """
 
 from __future__ import annotations
@@ -40,8 +40,6 @@ from immukf_sitl.estimation.models import Measurement, MeasurementModel, Process
 from immukf_sitl.estimation.sigma_points import JulierSigmaPoints, SigmaPointScheme, SigmaWeights
 
 NoiseForm = Literal["augmented", "additive"]
-#: How the kernels run: ``"numba"`` compiled (``"auto"`` is the same), ``"python"`` interpreted.
-Backend = Literal["auto", "numba", "python"]
 #: Tail probability beyond which an innovation is counted as an outlier (it is still used).
 OUTLIER_TAIL_PROBABILITY = 1e-9
 
@@ -53,21 +51,18 @@ def outlier_nis_threshold(nz: int) -> float:
 
 
 @cache
-def load_kernels(backend: Backend = "auto") -> ModuleType:
-    """The kernels module for ``backend``: compiled (``"auto"``, ``"numba"``) or interpreted.
+def load_kernels(compiled: bool = True) -> ModuleType:
+    """The kernels module, compiled or not.
 
-    ``"python"`` loads a second copy of :mod:`immukf_sitl.estimation.kernels` with
+    Uncompiled loads a second copy of :mod:`immukf_sitl.estimation.kernels` with
     ``numba.config.DISABLE_JIT`` set while its decorators run, so that every kernel, and every
     helper it calls, is the plain Python function. (The flag is numba's global: load the
     interpreted copy before other threads define numba functions; it is cached afterwards.)
     """
-    if backend in ("auto", "numba"):
+    if not isinstance(compiled, bool):
+        raise ValueError(f"compiled: expected True or False, got {compiled!r}")
+    if compiled:
         return kernels
-    if backend != "python":
-        raise ValueError(
-            f"backend must be 'auto', 'numba' or 'python', not {backend!r} (the former numpy "
-            "reference is the kernels run uncompiled: 'python')"
-        )
     spec = importlib.util.find_spec(kernels.__name__)
     module = importlib.util.module_from_spec(spec)
     disabled = numba.config.DISABLE_JIT
@@ -151,9 +146,9 @@ class UnscentedKalmanFilter:
         Sigma-point weights; default the paper's kappa form with ``kappa = 0``.
     noise_form : {"augmented", "additive"}
         See the module docstring.
-    backend : {"auto", "numba", "python"}
-        How the kernels run: compiled (``"auto"`` and ``"numba"``) or interpreted (``"python"``);
-        see :func:`load_kernels`.
+    compiled : bool
+        How the kernels run: compiled (True, the default) or uncompiled (False); see
+        :func:`load_kernels`.
 
     Attributes
     ----------
@@ -163,7 +158,7 @@ class UnscentedKalmanFilter:
         The kernels this filter runs (:mod:`immukf_sitl.estimation.kernels` or its interpreted
         copy); an :class:`~immukf_sitl.estimation.imm.ImmEstimator` runs its mixing and
         combination in the same ones.
-    backend : {"numba", "python"}
+    compiled : bool
         Which of the two.
     """
 
@@ -172,7 +167,7 @@ class UnscentedKalmanFilter:
         process: ProcessModel,
         scheme: SigmaPointScheme | None = None,
         noise_form: NoiseForm = "augmented",
-        backend: Backend = "auto",
+        compiled: bool = True,
     ) -> None:
         if noise_form not in ("augmented", "additive"):
             raise ValueError(f"noise_form must be 'augmented' or 'additive', not {noise_form!r}")
@@ -182,8 +177,8 @@ class UnscentedKalmanFilter:
         self.scheme: SigmaPointScheme = scheme if scheme is not None else JulierSigmaPoints()
         self.noise_form: NoiseForm = noise_form
         self.diagnostics = FilterDiagnostics()
-        self.kernels: ModuleType = load_kernels(backend)
-        self.backend: str = "python" if backend == "python" else "numba"
+        self.kernels: ModuleType = load_kernels(compiled)
+        self.compiled: bool = compiled
         self._x_angle = angle_mask(process.nx, process.angle_idx)
         self._consider = np.array(process.consider_idx, dtype=np.int64)
         # per measurement model: (model, angle mask, R as added by the update); and the

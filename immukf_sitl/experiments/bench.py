@@ -134,7 +134,7 @@ def time_interleaved(
                     float(np.median(gps_times_ns) / 1e3) if gps_times_ns else None
                 ),
                 "first_step_ms": bank["first"] / 1e6,
-                "filter_backend": est.imm.ukf.backend,
+                "filter_compiled": est.imm.ukf.compiled,
                 "diagnostics": est.diagnostics.as_dict(),
             }
         )
@@ -217,7 +217,7 @@ def run_bench(
     result: dict = {
         "benchmark": "7-mode IMM-UKF step over the 6-DOF Aerosonde model, 100 Hz IMU, 1 Hz GPS",
         "machine": {"python": platform.python_version(), "cpu_count": _cpu_count()},
-        "model_backend": "numba" if model.uses_numba else "numpy",
+        "model_compiled": model.uses_numba,
         "results": results,
     }
     medians = {
@@ -249,9 +249,10 @@ def _cpu_count() -> int:
 def print_human(result: dict) -> None:
     """Table for people, on stderr."""
     out = sys.stderr
-    backends = f"model backend: {result['model_backend']}"
-    backends += f", filter backend: {result['results'][0]['filter_backend']}"
-    print(f"{result['benchmark']} ({backends})", file=out)
+    compiled = {True: "compiled", False: "uncompiled"}
+    kernels = f"model {compiled[result['model_compiled']]}"
+    kernels += f", filter {compiled[result['results'][0]['filter_compiled']]}"
+    print(f"{result['benchmark']} ({kernels})", file=out)
     header = f"{'form':<20}{'model':>9}{'states':>7}{'modes':>6}{'steps':>7}"
     header += f"{'median us':>11}{'p99 us':>10}"
     print(f"{header}{'GPS-step us':>13}{'first step ms':>15}", file=out)

@@ -31,7 +31,7 @@ State, controls, noise and array layout: ``docs/conventions.md`` (state axis fir
 
 import math
 from dataclasses import dataclass, field
-from typing import ClassVar, Literal
+from typing import ClassVar
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -169,11 +169,11 @@ class AeroModel:
         Gravity at the origin; default WGS-84 normal gravity at the origin.
     gravity_gradient_ps2 : float, optional
         ``d g / d pD`` (1/s^2); default the free-air gradient at the origin (about 3.1e-6).
-    backend : {"auto", "numpy", "numba"}
+    compiled : bool
         How :meth:`step`, :meth:`derivatives`, :meth:`forces_moments` and :meth:`imu` run the
-        equations of :mod:`immukf_sitl.models.aero_kernels`: "numba" (and "auto") in compiled
-        loops over the batch's columns, "numpy" uncompiled over whole rows of the batch (the
-        reference; about 7 times slower on a (12, 7, 49) batch).
+        equations of :mod:`immukf_sitl.models.aero_kernels`: True (the default) in compiled
+        loops over the batch's columns, False the same functions uncompiled over whole rows of
+        the batch (the reference; about 7 times slower on a (12, 7, 49) batch).
 
     Notes
     -----
@@ -189,7 +189,7 @@ class AeroModel:
     density_kgpm3: float | None = None
     gravity_mps2: float | None = None
     gravity_gradient_ps2: float | None = None
-    backend: Literal["auto", "numpy", "numba"] = "auto"
+    compiled: bool = True
 
     nx: ClassVar[int] = 12
     nu: ClassVar[int] = 4
@@ -220,10 +220,8 @@ class AeroModel:
     def __post_init__(self) -> None:
         if not self.dt_s > 0.0:
             raise ValueError(f"AeroModel.dt_s: expected > 0, got {self.dt_s}")
-        if self.backend not in ("auto", "numpy", "numba"):
-            raise ValueError(
-                f"AeroModel.backend: expected 'auto', 'numpy' or 'numba', got {self.backend!r}"
-            )
+        if not isinstance(self.compiled, bool):
+            raise ValueError(f"AeroModel.compiled: expected True or False, got {self.compiled!r}")
         lat, h0 = self.origin.lat_deg, self.origin.alt_m
         g0 = float(normal_gravity_mps2(lat, h0)) if self.gravity_mps2 is None else self.gravity_mps2
         if self.gravity_gradient_ps2 is None:
@@ -247,7 +245,7 @@ class AeroModel:
     @property
     def uses_numba(self) -> bool:
         """True when the compiled kernels are in use."""
-        return self.backend != "numpy"
+        return self.compiled
 
     @staticmethod
     def _flat(x: np.ndarray, u: np.ndarray, v: np.ndarray | None, n: int):

@@ -12,7 +12,7 @@ compiles. The same code serves twice:
   each other instead of to the dispatchers, so no numba is involved. Since the kernels index the
   state only along its first axis they accept whole rows as well: with ``x`` ``(12, *batch)``,
   ``x[3]`` is the row of ``u`` and numpy evaluates a kernel over the batch at once. That is
-  ``AeroModel(backend="numpy")``, the reference the compiled loops are tested against, and what
+  ``AeroModel(compiled=False)``, the reference the compiled loops are tested against, and what
   the public coefficient helpers of :mod:`immukf_sitl.models.aero` run.
 
 So that both uses agree, a kernel branches on constants only (the density switch, the lever

@@ -173,7 +173,7 @@ def model_error_sigmas(
     the largest change, and its variation that of the spread of the change across the
     conditions.
     """
-    origin_model = AeroModel(params, backend="numpy")
+    origin_model = AeroModel(params, compiled=False)
     x_trim, u_trim = origin_model.trim(airspeed_mps)
     x_turn = x_trim.copy()
     x_turn[9:12] = rates_radps

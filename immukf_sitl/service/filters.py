@@ -37,7 +37,7 @@ from immukf_sitl.estimation import (
     fault_masked_output,
     single_fault_modes,
 )
-from immukf_sitl.estimation.ukf import Backend, NoiseForm
+from immukf_sitl.estimation.ukf import NoiseForm
 from immukf_sitl.models.aero import AeroModel
 from immukf_sitl.models.augmented import (
     AugmentedAeroModel,
@@ -309,14 +309,13 @@ def build_aero_estimator(
     filter_model: FilterModel | None = None,
     noise_form: NoiseForm = "augmented",
     kappa: float = 0.0,
-    backend: Backend = "auto",
+    compiled: bool = True,
 ) -> AircraftEstimator:
     """UKF-1 (``"ukf1"``, needs ``true_mode``), UKF-2 (``"ukf2"``) or UKF-4 (``"imm"``).
 
-    ``filter_model`` defaults to the paper's (:class:`PaperModel`). ``backend`` selects how the
-    filter's kernels run (``"auto"``/``"numba"`` compiled, ``"python"`` the same functions
-    uncompiled, see :class:`UnscentedKalmanFilter`); the model's is chosen when ``model`` is
-    built.
+    ``filter_model`` defaults to the paper's (:class:`PaperModel`). ``compiled`` selects how the
+    filter's kernels run (False: the same functions uncompiled, see
+    :class:`UnscentedKalmanFilter`); the aircraft model's is chosen when ``model`` is built.
     """
     sensors = sensors if sensors is not None else SensorSpec()
     filter_model = filter_model if filter_model is not None else PaperModel()
@@ -331,7 +330,9 @@ def build_aero_estimator(
     else:
         raise ValueError(f"not an aerodynamic-model variant: {variant!r}")
     dynamics = filter_model.build(model, sensors, modes)
-    ukf = UnscentedKalmanFilter(dynamics.process, dynamics.sigma_points(kappa), noise_form, backend)
+    ukf = UnscentedKalmanFilter(
+        dynamics.process, dynamics.sigma_points(kappa), noise_form, compiled
+    )
     floor = filter_model.probability_floor if len(modes) > 1 else 0.0
     imm = ImmEstimator(ukf, filter_model.transition(modes), floor, dynamics.gate())
     imu_model, imu_gps_model = aero_measurement_models(dynamics.flown, modes, sensors)
