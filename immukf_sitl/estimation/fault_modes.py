@@ -170,10 +170,9 @@ class ObservabilityGate:
     zero, mode ``j`` is scored on that channel with the fault-free mode's marginal likelihood:
     the channel says nothing for or against the fault. Once the model says the channel should
     read a value away from zero, the reading decides: zero-plus-noise (failed) or that value
-    (healthy), which is what the mode probabilities then mean. (Asking the fault-free mode's
-    prediction to leave zero as well was tried: the same declarations on the windy set, but a
-    dead r gyro in calm air identified 2.97 s after it became observable instead of 1.38 s,
-    since the fault-free filter, fusing the zeros, predicts near zero.)
+    (healthy), which is what the mode probabilities then mean. The test uses the fault mode's
+    own prediction, not the fault-free mode's: once a channel is dead, the fault-free filter
+    fuses its zeros and predicts near zero itself, which would keep the gate shut.
 
     Parameters
     ----------
