@@ -220,6 +220,17 @@ def _imm_discussion(summary: dict) -> str:
     )
 
 
+def _header(campaign: Campaign, summary: dict, command: str) -> dict[str, object]:
+    """What every report's head names: the campaign, the command, the runs flown and failed."""
+    return {
+        "name": campaign.name,
+        "command": command,
+        "description": campaign.description,
+        "runs": summary["runs"],
+        "failed_runs": summary["failed_runs"],
+    }
+
+
 def paper_report(
     campaign: Campaign,
     rows: Sequence[Row],
@@ -254,11 +265,7 @@ def paper_report(
     )
     return render(
         "paper_report",
-        name=campaign.name,
-        command=command,
-        description=campaign.description,
-        runs=summary["runs"],
-        failed_runs=summary["failed_runs"],
+        **_header(campaign, summary, command),
         flight=flight,
         loops=", ".join(campaign.loops),
         replicates=campaign.replicates,
@@ -451,11 +458,7 @@ def matrix_report(
     )
     return render(
         "matrix_report",
-        name=campaign.name,
-        command=command,
-        description=campaign.description,
-        runs=summary["runs"],
-        failed_runs=summary["failed_runs"],
+        **_header(campaign, summary, command),
         replicates=campaign.replicates,
         airs=", ".join(a.name for a in campaign.air),
         filter_models=", ".join(campaign.filter_models),
