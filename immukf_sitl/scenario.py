@@ -38,8 +38,11 @@ A wrong file gets one line naming the file, the field and what was expected
       - t_s: 30                    # start time (s, sim clock)
         end_t_s: 60                # optional: the sensor recovers
         channels: [q]              # any of x, y, z (accelerometers), p, q, r (gyros)
-        kind: zero                 # zero | stuck | bias | drift
-        value: 0.0                 # bias: offset (m/s^2 or rad/s); drift: rate per second
+        kind: zero                 # zero | stuck | bias | drift | scale | noise | spikes
+        value: 0.2                 # bias: offset (m/s^2 or rad/s); drift: its rate per s;
+                                   # scale: gain; noise: sigma factor; spikes: size
+                                   # (zero and stuck take none)
+        rate_hz: 2                 # spikes only: spikes per second (Poisson)
     manoeuvres:                    # optional: control doublets on top of the autopilot
       - t_s: 31                    # start (s)
         kind: rudder_doublet       # rudder_doublet | aileron_doublet | elevator_doublet
@@ -62,13 +65,13 @@ import yaml
 
 from immukf_sitl.errors import UserError
 from immukf_sitl.estimation.fault_modes import IMU_CHANNELS, FaultMode
+from immukf_sitl.fault_kinds import FAULT_KINDS, check_fault_parameters
 from immukf_sitl.models.airframe import AirframeSpec, AirframeUncertainty, scalable_parameters
 from immukf_sitl.models.params import load_aircraft_params
 from immukf_sitl.models.sensors import GpsSpec, ImuSpec, SensorSpec
 from immukf_sitl.models.wind import TURBULENCE_LEVELS, WindSpec
 from immukf_sitl.yaml_fields import YamlFields
 
-FAULT_KINDS = ("zero", "stuck", "bias", "drift")
 MANOEUVRE_KINDS = ("elevator_doublet", "aileron_doublet", "rudder_doublet")
 
 
@@ -146,13 +149,14 @@ class FlightPlan:
 
 @dataclass(frozen=True)
 class FaultSpec:
-    """One injected fault on one or more IMU channels."""
+    """One injected fault on one or more IMU channels (kinds: :mod:`immukf_sitl.fault_kinds`)."""
 
     t_s: float
     channels: tuple[str, ...]
     kind: str = "zero"
     value: float = 0.0
     end_t_s: float | None = None
+    rate_hz: float = 0.0
 
     @property
     def mode(self) -> FaultMode:
@@ -265,13 +269,24 @@ def _fault(path: str, where: str, data: Any, duration_s: float) -> FaultSpec:
     kind = r.string("kind", "zero")
     if kind not in FAULT_KINDS:
         r.fail("kind", f"one of {', '.join(FAULT_KINDS)}", kind)
-    value = r.number("value", 0.0)
+    value = r.number("value") if r.has("value") else None
+    rate_hz = r.number("rate_hz") if r.has("rate_hz") else None
+    problem = check_fault_parameters(kind, value, rate_hz)
+    if problem is not None:
+        raise r.error(f"{r.path}: {r.where}.{problem}")
     end_t_s = None
     if r.has("end_t_s"):
         end_t_s = r.number("end_t_s", lo=t_s, lo_open=True)
     r.done()
     ordered = tuple(c for c in IMU_CHANNELS if c in channels)
-    return FaultSpec(t_s=t_s, channels=ordered, kind=kind, value=value, end_t_s=end_t_s)
+    return FaultSpec(
+        t_s=t_s,
+        channels=ordered,
+        kind=kind,
+        value=value or 0.0,
+        end_t_s=end_t_s,
+        rate_hz=rate_hz or 0.0,
+    )
 
 
 def _manoeuvre(path: str, where: str, data: Any, duration_s: float) -> ManoeuvreSpec:

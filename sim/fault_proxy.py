@@ -22,14 +22,10 @@ pymavlink with the key, with the original frame's link id and timestamp (it stay
 stream). A frame that fails the check (unsigned, wrong signature, replayed) is never faulted
 nor re-signed: it is forwarded as it came, and the estimator rejects it.
 
-Fault kinds, from ``t_s`` until ``end_t_s`` (or the end), on each of the fault's channels
-(the paper's fault is ``zero``):
-
-- ``zero``: 0 plus that sensor's white noise (``scenario.sensors.imu`` sigma): a dead sensor
-  that still reports;
-- ``stuck``: the channel's value at onset, held;
-- ``bias``: plus ``value`` (m/s^2 or rad/s);
-- ``drift``: plus ``value * (t - t_s)``.
+Fault kinds, from ``t_s`` until ``end_t_s`` (or the end), on each of the fault's channels:
+``zero`` (the paper's), ``stuck``, ``bias``, ``drift``, ``scale``, ``noise`` and ``spikes``, as
+:mod:`immukf_sitl.fault_kinds` defines them; the noise the kinds add or report is that sensor's
+(``scenario.sensors.imu`` sigma).
 
 Several faults apply in file order, each to the output of the previous ones.
 
@@ -58,6 +54,7 @@ import numpy as np
 
 from immukf_sitl.errors import UserError
 from immukf_sitl.estimation.fault_modes import IMU_CHANNELS
+from immukf_sitl.fault_kinds import spike_schedule
 from immukf_sitl.mavlink.codec import (
     DecodeError,
     decode_highres_imu,
@@ -136,6 +133,7 @@ class FaultInjector:
             for fault in self.faults
         ]
         self._held: list[np.ndarray | None] = [None] * len(self.faults)
+        self._last_t_s: list[float | None] = [None] * len(self.faults)
 
     @classmethod
     def from_scenario(cls, scenario: Scenario) -> FaultInjector:
@@ -164,26 +162,40 @@ class FaultInjector:
         for i, fault in enumerate(self.faults):
             if not fault.active(t):
                 self._held[i] = None  # a later onset holds its own value
+                self._last_t_s[i] = None
                 continue
             if values is None:
                 values = sample.as_array()
-            index = self._index[i]
-            if fault.kind == "zero":
-                values[index] = self._sigma[index] * self._rng.standard_normal(index.size)
-            elif fault.kind == "stuck":
-                held = self._held[i]
-                if held is None:
-                    held = self._held[i] = values[index].copy()
-                values[index] = held
-            elif fault.kind == "bias":
-                values[index] += fault.value
-            elif fault.kind == "drift":
-                values[index] += fault.value * (t - fault.t_s)
-            else:  # pragma: no cover - the scenario loader admits only the kinds above
-                raise ValueError(f"fault kind {fault.kind!r}: unknown")
+            values[self._index[i]] = self._faulted(i, fault, t, values[self._index[i]])
         if values is None:
             return sample
         return ImuSample(t, values[:3], values[3:])
+
+    def _faulted(self, i: int, fault: FaultSpec, t: float, healthy: np.ndarray) -> np.ndarray:
+        """Fault ``i``'s channels as they read at ``t``, from their ``healthy`` readings."""
+        kind, sigma = fault.kind, self._sigma[self._index[i]]
+        if kind == "zero":
+            return sigma * self._rng.standard_normal(healthy.size)
+        if kind == "stuck":
+            if self._held[i] is None:
+                self._held[i] = healthy.copy()
+            return self._held[i]
+        if kind == "bias":
+            return healthy + fault.value
+        if kind == "drift":
+            return healthy + fault.value * (t - fault.t_s)
+        if kind == "scale":
+            return healthy * fault.value
+        if kind == "noise":  # the sensor's own noise is in the reading: add the rest in quadrature
+            extra = np.sqrt(fault.value**2 - 1.0) * sigma
+            return healthy + extra * self._rng.standard_normal(healthy.size)
+        if kind == "spikes":  # every spike since the previous sample lands on this one
+            last = self._last_t_s[i]
+            self._last_t_s[i] = t
+            since = fault.t_s if last is None else last + 1e-9
+            _, sizes = spike_schedule(fault.t_s, fault.value, fault.rate_hz, since, t + 1e-9)
+            return healthy + sizes.sum()
+        raise ValueError(f"fault kind {kind!r}: unknown")  # the scenario loader admits no other
 
 
 @dataclass(frozen=True)
@@ -283,7 +295,10 @@ class FaultProxy:
         for i in sorted(active - self._active):
             fault = self.injector.faults[i]
             self._annotate(
-                fault_annotation(fault.kind, fault.channels, fault.t_s, fault.value), time_s
+                fault_annotation(
+                    fault.kind, fault.channels, fault.t_s, fault.value, rate_hz=fault.rate_hz
+                ),
+                time_s,
             )
         for i in sorted(self._active - active):
             fault = self.injector.faults[i]
@@ -419,7 +434,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def _describe(fault: FaultSpec) -> str:
     until = f" until {fault.end_t_s:g} s" if fault.end_t_s is not None else ""
-    value = f" {fault.value:g}" if fault.kind in ("bias", "drift") else ""
+    value = f" {fault.value:g}" if fault.kind not in ("zero", "stuck") else ""
+    if fault.kind == "spikes":
+        value += f" at {fault.rate_hz:g} Hz"
     return f"{'+'.join(fault.channels)} {fault.kind}{value} at {fault.t_s:g} s{until}"
 
 

@@ -17,6 +17,7 @@ from scipy import stats
 from test_sim_emitter import Acknowledger
 from udp_tools import DatagramSink, bound_socket, cli_process, free_udp_port, parse_frames
 
+from immukf_sitl.experiments.observability import fault_deviation
 from immukf_sitl.mavlink import codec
 from immukf_sitl.mavlink.codec import repack_highres_imu
 from immukf_sitl.mavlink.tlog import TlogWriter
@@ -82,6 +83,45 @@ def test_bias_adds_and_drift_ramps():
     assert out[2] == pytest.approx(BASE[2] + 0.3)
     assert out[5] == pytest.approx(BASE[5] + 0.01 * 2.0)
     assert np.array_equal(out[[0, 1, 3, 4]], BASE[[0, 1, 3, 4]])
+
+
+def test_scale_multiplies_the_reading():
+    inj = injector(FaultSpec(t_s=1.0, channels=("x", "p"), kind="scale", value=-0.5))
+    out = inj.apply(sample(1.0)).as_array()
+    assert out[[0, 3]] == pytest.approx(-0.5 * BASE[[0, 3]])
+    assert np.array_equal(out[[1, 2, 4, 5]], BASE[[1, 2, 4, 5]])
+
+
+def test_noise_makes_the_readings_spread_value_times_the_sensors():
+    """The healthy reading already holds one sigma of noise: the proxy adds the rest in
+    quadrature, so a noisy healthy stream through it has ``value * sigma``."""
+    factor, n = 4.0, 20000
+    inj = injector(FaultSpec(t_s=0.0, channels=("r",), kind="noise", value=factor))
+    rng = np.random.default_rng(11)
+    sigma = NOISE.gyro_sigma_radps
+    healthy = BASE[5] + sigma * rng.standard_normal(n)
+    out = np.array(
+        [inj.apply(sample(0.01 * k, np.r_[BASE[:5], healthy[k]])).gyro_radps[2] for k in range(n)]
+    )
+    lo, hi = chi2_bounds(n, factor * sigma)
+    assert lo < out.std(ddof=1) < hi
+    assert abs(out.mean() - BASE[5]) < 4 * factor * sigma / math.sqrt(n)
+
+
+def test_spikes_come_at_their_rate_with_both_signs_and_the_truth_tools_see_the_same_ones():
+    fault = FaultSpec(t_s=2.0, channels=("q",), kind="spikes", value=0.4, rate_hz=3.0)
+    inj = injector(fault)
+    times = 0.01 * np.arange(60001)  # 600 s at 100 Hz
+    out = np.array([inj.apply(sample(t)).gyro_radps[1] for t in times]) - BASE[4]
+    hits = out[np.abs(out) > 1e-12]
+    count = hits.size
+    expected = 3.0 * (times[-1] - 2.0)
+    assert stats.poisson.ppf(1e-4, expected) < count < stats.poisson.ppf(1 - 1e-4, expected)
+    assert set(np.round(np.abs(hits), 9)) <= {0.4, 0.8}  # two in one 10 ms sample: rare
+    assert stats.binomtest(int(np.sum(hits > 0)), count).pvalue > 1e-4
+    assert not np.any(out[times < 2.0])
+    truth = np.tile(BASE[4], times.size)
+    assert np.allclose(fault_deviation(fault, times, truth), out, atol=1e-12)
 
 
 def test_the_sensor_recovers_at_end_t_s():

@@ -6,8 +6,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy import stats
 
 from immukf_sitl.experiments.observability import (
+    MIN_NOISE_FACTOR,
     channel_sigma,
     fault_deviation,
     fault_observable_time_s,
@@ -54,6 +56,20 @@ def test_deviation_of_each_kind():
     assert np.array_equal(fault_deviation(stuck, t, truth), [0.0, 0.0, -1.0, -2.0])
     assert np.array_equal(fault_deviation(bias, t, truth), [0.0, 0.5, 0.5, 0.0])
     assert np.array_equal(fault_deviation(drift, t, truth), [0.0, 0.0, 0.25, 0.5])
+    scale = FaultSpec(t_s=1.0, channels=("q",), kind="scale", value=0.5)
+    assert np.array_equal(fault_deviation(scale, t, truth), [0.0, -1.0, -1.5, -2.0])
+
+
+def test_noise_is_observable_from_onset_only_above_the_smallest_detectable_factor():
+    """A factor k puts ``2 (1 - Phi(5 / k))`` of the samples beyond 5 sigma: one a second at
+    100 Hz for k = 1.94, which MIN_NOISE_FACTOR rounds to 2."""
+    assert 2.0 * stats.norm.sf(5.0 / 1.94) * 100.0 == pytest.approx(1.0, rel=0.02)
+    t = np.arange(0.0, 3.0, 0.01)
+    imu = np.zeros((t.size, 6))
+    loud = FaultSpec(t_s=1.0, channels=("p",), kind="noise", value=MIN_NOISE_FACTOR * 1.5)
+    quiet = FaultSpec(t_s=1.0, channels=("p",), kind="noise", value=MIN_NOISE_FACTOR)
+    assert fault_observable_time_s(loud, t, imu, ImuSpec()) == pytest.approx(1.0)
+    assert fault_observable_time_s(quiet, t, imu, ImuSpec()) is None
 
 
 def test_a_fault_on_several_channels_is_observable_when_any_is():

@@ -70,7 +70,32 @@ def test_minimal_file_gets_the_defaults(tmp_path):
         (
             MINIMAL + "faults:\n  - {t_s: 5, channels: [q], kind: frozen}\n",
             r"bad\.yaml: faults\[0\]\.kind: expected one of zero, stuck, bias, drift, "
-            r"got 'frozen'",
+            r"scale, noise, spikes, got 'frozen'",
+        ),
+        (
+            MINIMAL + "faults:\n  - {t_s: 5, channels: [q], kind: bias}\n",
+            r"bad\.yaml: faults\[0\]\.value: kind bias needs one \(the offset",
+        ),
+        (
+            MINIMAL + "faults:\n  - {t_s: 5, channels: [q], kind: zero, value: 1}\n",
+            r"bad\.yaml: faults\[0\]\.value: kind zero takes none, got 1",
+        ),
+        (
+            MINIMAL + "faults:\n  - {t_s: 5, channels: [q], kind: noise, value: 0.5}\n",
+            r"bad\.yaml: faults\[0\]\.value: expected the factor on the noise sigma, > 1 for "
+            r"kind noise, got 0\.5",
+        ),
+        (
+            MINIMAL + "faults:\n  - {t_s: 5, channels: [q], kind: scale, value: 1}\n",
+            r"bad\.yaml: faults\[0\]\.value: expected the gain, finite and not 1",
+        ),
+        (
+            MINIMAL + "faults:\n  - {t_s: 5, channels: [q], kind: spikes, value: 0.3}\n",
+            r"bad\.yaml: faults\[0\]\.rate_hz: expected spikes per second in \(0, 100\]",
+        ),
+        (
+            MINIMAL + "faults:\n  - {t_s: 5, channels: [q], kind: bias, value: 0.1, rate_hz: 2}\n",
+            r"bad\.yaml: faults\[0\]\.rate_hz: only kind spikes takes one",
         ),
         (
             MINIMAL + "faults:\n  - {t_s: 50, channels: [q]}\n",
@@ -102,6 +127,12 @@ def test_minimal_file_gets_the_defaults(tmp_path):
         "unknown-field",
         "bad-channel",
         "bad-kind",
+        "bias-without-value",
+        "zero-with-value",
+        "noise-factor-below-one",
+        "unit-gain",
+        "spikes-without-rate",
+        "rate-on-bias",
         "fault-after-end",
         "missing-waypoints",
         "empty-waypoints",

@@ -7,9 +7,12 @@ fault's start and the first time the true channel leaves a band of ``n_sigma`` s
 deviations of that sensor's white noise around zero.
 
 The same rule covers every fault kind through the deviation it causes, faulted minus healthy
-reading (noise aside): ``zero`` ``-truth``, ``stuck`` ``held - truth``, ``bias`` ``value`` and
-``drift`` ``value (t - t_s)``. A fault on several channels is observable as soon as any of its
-channels is.
+reading (noise aside): ``zero`` ``-truth``, ``stuck`` ``held - truth``, ``bias`` ``value``,
+``drift`` ``value (t - t_s)``, ``scale`` ``(value - 1) truth`` and ``spikes`` the spikes that
+land on each sample (:func:`immukf_sitl.fault_kinds.spike_schedule`). ``noise`` has no
+deviation to threshold: it is observable from its onset when its factor exceeds
+:data:`MIN_NOISE_FACTOR`, never below. A fault on several channels is observable as soon as any
+of its channels is.
 
 Truth comes as arrays, so that the in-process simulation (``FlightRecord.truth``) and a
 recorded tlog (HIL_STATE_QUATERNION) both feed it: times ``(N,)`` in seconds and the six true
@@ -22,11 +25,13 @@ from __future__ import annotations
 import numpy as np
 
 from immukf_sitl.estimation.fault_modes import IMU_CHANNELS
+from immukf_sitl.fault_kinds import spike_schedule
 from immukf_sitl.models.sensors import ImuSpec
 from immukf_sitl.scenario import FaultSpec
 
 __all__ = [
     "DEFAULT_N_SIGMA",
+    "MIN_NOISE_FACTOR",
     "channel_sigma",
     "fault_deviation",
     "fault_observable_time_s",
@@ -35,6 +40,11 @@ __all__ = [
 
 #: Width of the band around zero, in standard deviations of the sensor noise.
 DEFAULT_N_SIGMA = 5.0
+#: A noise fault whose sigma factor is at most this is within what one IMU sample can show: a
+#: factor k puts 1 sample in ``2 (1 - Phi(n_sigma / k))`` beyond ``n_sigma`` noise sigmas of
+#: the healthy reading, one a second at 100 Hz and n_sigma 5 for k = 5 / 2.58 = 1.94 (the
+#: healthy sensor: one in 1.7 million samples).
+MIN_NOISE_FACTOR = 2.0
 
 
 def first_observable_time_s(
@@ -114,9 +124,24 @@ def fault_deviation(fault: FaultSpec, times_s: np.ndarray, true_channel: np.ndar
         deviation = np.full_like(truth, fault.value)
     elif fault.kind == "drift":
         deviation = fault.value * (times - fault.t_s)
+    elif fault.kind == "scale":
+        deviation = (fault.value - 1.0) * truth
+    elif fault.kind == "spikes":
+        deviation = _spikes_per_sample(fault, times)
+    elif fault.kind == "noise":  # no deterministic part: see MIN_NOISE_FACTOR
+        deviation = np.full_like(truth, np.inf if fault.value > MIN_NOISE_FACTOR else 0.0)
     else:  # pragma: no cover - the scenario loader admits only the kinds above
         raise ValueError(f"fault kind {fault.kind!r}: unknown")
     return np.where(active, deviation, 0.0)
+
+
+def _spikes_per_sample(fault: FaultSpec, times: np.ndarray) -> np.ndarray:
+    """The spikes landing on each sample: those after the previous sample, up to this one."""
+    if times.size == 0:
+        return np.zeros(0)
+    at, sizes = spike_schedule(fault.t_s, fault.value, fault.rate_hz, fault.t_s, times[-1] + 1e-9)
+    index = np.searchsorted(times, at - 1e-9, side="left")  # the first sample at or after each
+    return np.bincount(index, weights=sizes, minlength=times.size)[: times.size]
 
 
 def fault_observable_time_s(

@@ -33,7 +33,7 @@ from immukf_sitl.scenario import FaultSpec
 
 FAULT_TEXT = re.compile(
     r"^FAULT (?P<end>END )?(?P<kind>\w+) (?P<channels>[xyzpqr+]+) t=(?P<t>[-\d.]+)"
-    r"(?: v=(?P<v>[-+\deE.]+))?"
+    r"(?: v=(?P<v>[-+\deE.]+))?(?: r=(?P<r>[-+\deE.]+))?"
 )
 SCENARIO_TEXT = re.compile(r"^SCENARIO (?P<name>\S+)")
 
@@ -44,16 +44,29 @@ def scenario_annotation(name: str) -> str:
 
 
 def fault_annotation(
-    kind: str, channels: Iterable[str], t_s: float, value: float = 0.0, end: bool = False
+    kind: str,
+    channels: Iterable[str],
+    t_s: float,
+    value: float = 0.0,
+    end: bool = False,
+    rate_hz: float = 0.0,
 ) -> str:
     """The proxy's STATUSTEXT marking a fault's start or end (at most 50 characters).
 
-    ``FAULT zero q t=30.000``, ``FAULT bias x+z t=12.500 v=0.2``, ``FAULT END zero q t=60.000``.
+    ``FAULT zero q t=30.000``, ``FAULT bias x+z t=12.500 v=0.2``,
+    ``FAULT spikes q t=30.000 v=0.5 r=2``, ``FAULT END zero q t=60.000``. The parameters
+    shrink to 3, then 2, significant digits where 6 would not fit.
     """
     text = f"FAULT {'END ' if end else ''}{kind} {'+'.join(channels)} t={t_s:.3f}"
-    if value and not end:
-        text += f" v={value:.6g}"
-    return text[:50]
+    for digits in (6, 3, 2):  # fewer digits where 6 do not fit
+        full = text
+        if value and not end:
+            full += f" v={value:.{digits}g}"
+        if rate_hz and not end:
+            full += f" r={rate_hz:.{digits}g}"
+        if len(full) <= 50:
+            break
+    return full[:50]
 
 
 @dataclass(frozen=True)
@@ -65,10 +78,11 @@ class FaultRecord:
     t_s: float
     value: float = 0.0
     end_t_s: float | None = None
+    rate_hz: float = 0.0
 
     def spec(self) -> FaultSpec:
         """As the scenario's :class:`~immukf_sitl.scenario.FaultSpec`."""
-        return FaultSpec(self.t_s, self.channels, self.kind, self.value, self.end_t_s)
+        return FaultSpec(self.t_s, self.channels, self.kind, self.value, self.end_t_s, self.rate_hz)
 
 
 @dataclass
@@ -129,11 +143,14 @@ def read_flight_log(path: str | Path) -> FlightLog:
                         if key in open_faults:
                             i = open_faults.pop(key)
                             f = log.faults[i]
-                            log.faults[i] = FaultRecord(f.kind, f.channels, f.t_s, f.value, t_s)
+                            log.faults[i] = dataclasses.replace(f, end_t_s=t_s)
                     else:
                         open_faults[key] = len(log.faults)
                         value = float(match["v"]) if match["v"] else 0.0
-                        log.faults.append(FaultRecord(match["kind"], channels, t_s, value))
+                        rate = float(match["r"]) if match["r"] else 0.0
+                        log.faults.append(
+                            FaultRecord(match["kind"], channels, t_s, value, rate_hz=rate)
+                        )
             elif kind == "BAD_DATA":
                 log.bad_records += 1
         except codec.DecodeError:
