@@ -21,7 +21,7 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 
 from immukf_sitl.errors import UserError
-from immukf_sitl.estimation.fault_modes import FaultMode
+from immukf_sitl.estimation.fault_modes import FAULT_SIGNATURES, FaultMode
 from immukf_sitl.models.params import load_aircraft_params
 from immukf_sitl.models.sensors import SensorSpec
 from immukf_sitl.scenario import load_sensors
@@ -186,6 +186,16 @@ class FilterOptions:
             "1e-7 per step; "
             "docs/design/real-air-model.md)",
         )
+        group.add_argument(
+            "--fault-modes",
+            dest="fault_signature",
+            choices=FAULT_SIGNATURES,
+            default="untrusted",
+            help="what a fault mode predicts on its failed channel: untrusted (anything in the "
+            "sensor's range, so zeroed, stuck, biased, drifting, scaled and noisy sensors all "
+            "fit; default) or zero (the paper's zero plus noise, for its study; "
+            "docs/design/detection-and-tuning.md)",
+        )
         for flag, record, attribute, text in cls._NUMERIC:
             default = getattr(defaults[record], attribute)
             group.add_argument(
@@ -235,7 +245,11 @@ class FilterOptions:
             values[record][attribute] = value
         try:
             detector = DetectorConfig(**values["detector"])
-            model = filter_model(getattr(args, "filter_model", "paper"), **values["filter_model"])
+            model = filter_model(
+                getattr(args, "filter_model", "paper"),
+                fault_signature=getattr(args, "fault_signature", "untrusted"),
+                **values["filter_model"],
+            )
             model.transition((FaultMode(0), FaultMode(1)))  # validates the chain
         except ValueError as exc:
             raise UserError(str(exc)) from None
@@ -269,6 +283,7 @@ class FilterOptions:
         """The same options as command-line arguments (``run`` passes them to ``serve``)."""
         argv = ["--variant", self.variant]
         argv += ["--filter-model", self.filter_model.name]
+        argv += ["--fault-modes", self.filter_model.fault_signature]
         if self.true_mode is not None:
             argv += ["--true-mode", self.true_mode.name]
         for flag, record, attribute, _ in self._NUMERIC:

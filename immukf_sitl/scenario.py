@@ -22,7 +22,8 @@ A wrong file gets one line naming the file, the field and what was expected
       imu: {accel_sigma_mps2: 0.0245, gyro_sigma_radps: 0.00227,
             accel_bias_mps2: [0, 0, 0], gyro_bias_radps: [0, 0, 0],
             accel_bias_sigma_mps2: 0, gyro_bias_sigma_radps: 0,   # spec sheet: turn-on bias
-            bias_instability: false}       # true: the bias also wanders (Gauss-Markov)
+            bias_instability: false,       # true: the bias also wanders (Gauss-Markov)
+            accel_range_mps2: 156.9, gyro_range_radps: 34.9}  # full scale: 16 g, 2000 deg/s
       gps: {rate_hz: 1, north_east_sigma_m: 0.21, height_sigma_m: 0.40,
             ground_speed_sigma_mps: 0.05, course_sigma_mps: 0.05,
             k_gps_per_s: 0.000909}          # Gauss-Markov position error, 1/1100 1/s
@@ -328,6 +329,12 @@ def _sensors(r: YamlFields) -> SensorSpec:
         ),
         bias_time_constant_s=imu_r.number(
             "bias_time_constant_s", d_imu.bias_time_constant_s, lo=1.0, hi=1e5
+        ),
+        accel_range_mps2=imu_r.number(
+            "accel_range_mps2", d_imu.accel_range_mps2, lo=0.0, lo_open=True
+        ),
+        gyro_range_radps=imu_r.number(
+            "gyro_range_radps", d_imu.gyro_range_radps, lo=0.0, lo_open=True
         ),
     )
     imu_r.done()

@@ -23,6 +23,7 @@ ALLOWED = (
     ("immukf_sitl/models/", {"immukf_sitl.models", "immukf_sitl.errors"}),
     ("immukf_sitl/samples.py", set()),
     ("immukf_sitl/errors.py", set()),
+    ("immukf_sitl/fault_kinds.py", set()),
     (
         "immukf_sitl/scenario.py",
         {
@@ -30,6 +31,7 @@ ALLOWED = (
             "immukf_sitl.estimation",
             "immukf_sitl.models",
             "immukf_sitl.yaml_fields",
+            "immukf_sitl.fault_kinds",
         },
     ),  # fmt: skip
     ("immukf_sitl/yaml_fields.py", {"immukf_sitl.errors"}),
@@ -56,6 +58,7 @@ ALLOWED = (
         "immukf_sitl/mavlink/",
         {
             "immukf_sitl.mavlink",
+            "immukf_sitl.fault_kinds",
             "immukf_sitl.service",
             "immukf_sitl.estimation",
             "immukf_sitl.models",

@@ -25,7 +25,7 @@ from immukf_sitl.estimation import (
     MeasurementModel,
     ScaledSigmaPoints,
     UnscentedKalmanFilter,
-    fault_masked_output,
+    fault_mode_output,
     single_fault_modes,
     sticky_transition,
 )
@@ -282,7 +282,9 @@ def _update_case(rng, batch=5, nx=6, nz=4):
     z_points = np.stack([points[0] + 0.1 * points[1] ** 2, wrap_angle(points[2] + 0.01),
                          np.sin(points[3]), points[4] * points[5]])  # fmt: skip
     z = np.array([0.3, -np.pi + 0.01, 0.2, -0.1])
-    add_r = np.diag([0.05, 0.01, 0.02, 0.03])
+    # each filter adds its own: R, and on one channel a fault mode's width
+    add_r = np.repeat(np.diag([0.05, 0.01, 0.02, 0.03])[None], batch, axis=0)
+    add_r[np.arange(batch), np.arange(batch) % nz, np.arange(batch) % nz] += 100.0
     return weights, pred_mean, pred_cov, x_res, np.ascontiguousarray(z_points), z, add_r
 
 
@@ -351,7 +353,7 @@ def test_update_reports_an_innovation_covariance_it_cannot_factor(kern):
         np.random.default_rng(11)
     )
     z_points[3] = 0.0  # an output that ignores the state...
-    add_r[3, 3] = 0.0  # ...and has no noise: P_zz singular
+    add_r[:, 3, 3] = 0.0  # ...and has no noise: P_zz singular
     status, out = _run_update(
         kern, weights, pred_mean, pred_cov, x_res, z_points, z, add_r, ((), ())
     )
@@ -554,7 +556,7 @@ def test_imm_compiled_and_interpreted_agree_on_a_fault_bank(noise_form):
     process, A = oscillator_bank()
     modes = list(single_fault_modes())
     output = MeasurementModel(
-        fault_masked_output(identity_output, modes), np.eye(6) * 0.05**2, name="imu"
+        fault_mode_output(identity_output, modes, "zero"), np.eye(6) * 0.05**2, name="imu"
     )
     rng = np.random.default_rng(8)
     imms = [

@@ -8,7 +8,7 @@ import pytest
 from immukf_sitl.estimation import (
     FaultMode,
     all_fault_modes,
-    fault_masked_output,
+    fault_mode_output,
     single_fault_modes,
 )
 
@@ -51,7 +51,7 @@ def test_masked_output_predicts_zero_on_failed_channels_and_leaves_gps_alone():
     def healthy(t, x, u, w):
         return np.concatenate([x[:6], x[:2] * 10.0])  # six IMU channels + two extra
 
-    g = fault_masked_output(healthy, modes, n_extra=2)
+    g = fault_mode_output(healthy, modes, "zero", n_extra=2)
     x = np.arange(1.0, 7.0)[:, None, None] * np.ones((6, 3, 5))
     w = np.full((8, 3, 5), 0.5)
     z = g(0.0, x, None, w)

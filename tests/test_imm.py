@@ -19,7 +19,7 @@ from immukf_sitl.estimation import (
     MeasurementModel,
     ProcessModel,
     UnscentedKalmanFilter,
-    fault_masked_output,
+    fault_mode_output,
     single_fault_modes,
     sticky_transition,
 )
@@ -64,7 +64,7 @@ def _simulate_oscillators(rng, A, n_steps, fault_at):
 def _bank(modes, stay=0.99, floor=1e-4):
     process, A = oscillator_bank()
     measurement = MeasurementModel(
-        fault_masked_output(identity_output, modes), np.eye(6) * SENSOR_SIGMA**2, name="imu"
+        fault_mode_output(identity_output, modes, "zero"), np.eye(6) * SENSOR_SIGMA**2, name="imu"
     )
     imm = ImmEstimator(UnscentedKalmanFilter(process), sticky_transition(len(modes), stay), floor)
     return imm, measurement, A

@@ -6,11 +6,13 @@ I/O, no MAVLink, no aircraft (the models come in as functions, ``docs/convention
 
 from immukf_sitl.estimation.diagnostics import FilterDiagnostics
 from immukf_sitl.estimation.fault_modes import (
+    FAULT_SIGNATURES,
     IMU_CHANNELS,
     FaultMode,
     ObservabilityGate,
     all_fault_modes,
-    fault_masked_output,
+    fault_mode_noise_var,
+    fault_mode_output,
     single_fault_modes,
 )
 from immukf_sitl.estimation.imm import ImmEstimate, ImmEstimator, sticky_transition
@@ -38,7 +40,9 @@ __all__ = [
     "UkfEstimate",
     "UnscentedKalmanFilter",
     "all_fault_modes",
-    "fault_masked_output",
+    "FAULT_SIGNATURES",
+    "fault_mode_noise_var",
+    "fault_mode_output",
     "single_fault_modes",
     "sticky_transition",
     "sigma_points",

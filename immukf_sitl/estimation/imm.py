@@ -89,7 +89,7 @@ class ImmEstimator:
     ----------
     ukf : UnscentedKalmanFilter
         The filter of every mode; modes differ through the (mode-batched) measurement model
-        passed to :meth:`step`, e.g. one built by ``fault_masked_output``. Its ``kernels`` run
+        passed to :meth:`step`, e.g. one built by ``fault_mode_output``. Its ``kernels`` run
         the IMM's arithmetic too.
     transition : ndarray, shape (r, r)
         ``transition[i, j] = P(M(k+1)=j | M(k)=i)`` (eq. 3).

@@ -81,8 +81,9 @@ class Prediction(NamedTuple):
 class Observed(NamedTuple):
     """What was measured and how to read it.
 
-    The measurement ``z`` ``(nz,)``, the ``R`` added to ``P_zz`` ``(nz, nz)`` (zeros in the
-    augmented form) and the output's angle mask ``(nz,)``.
+    The measurement ``z`` ``(nz,)``, what each filter adds to its ``P_zz`` ``(B, nz, nz)``
+    (``R`` in the additive form, a fault mode's width on its failed channels in either form)
+    and the output's angle mask ``(nz,)``.
     """
 
     z: np.ndarray
@@ -509,7 +510,7 @@ def _output_moments(b, z_points, weights, observed, x_res, scratch, out):
     _weighted_outer(zr, wc, acc)  # eq. (20)
     for i in range(nz):
         for j in range(i + 1):
-            value = acc[i, j] + add_r[i, j]
+            value = acc[i, j] + add_r[b, i, j]
             z_cov[b, i, j] = value
             z_cov[b, j, i] = value
     # eq. (19), transposed: P_zx[c, a] = sum_s z~_s[c] (x~_s[a] w_s)
@@ -631,7 +632,7 @@ def update(
     weights : MomentWeights
         Mean and covariance weights.
     observed : Observed
-        The measurement, the ``R`` added to ``P_zz`` and the output's angle mask.
+        The measurement, what each filter adds to ``P_zz`` and the output's angle mask.
     x_angle : ndarray of bool, shape (nx,)
         Angle components of the state.
     out : Updated

@@ -120,24 +120,52 @@ class MeasurementModel:
     g : MeasurementFn
         ``g(t_s, x, u, w)``; with ``w=None`` it must behave as ``w = 0``. For a bank of
         mode-matched filters ``x`` arrives as ``(nx, modes, sigma)`` and ``g`` may depend on the
-        mode axis (see :func:`immukf_sitl.estimation.fault_modes.fault_masked_output`).
+        mode axis (see :func:`immukf_sitl.estimation.fault_modes.fault_mode_output`).
     noise_cov : ndarray, shape (nz, nz)
         ``R``.
     angle_idx : tuple of int
         Output components that are angles.
     name : str
         For messages and diagnostics.
+    mode_noise_var : ndarray, shape (modes, nz), optional
+        Variance each filter of a bank adds to each output channel on top of ``R`` (a fault
+        mode's width on its failed channels, :func:`~immukf_sitl.estimation.fault_modes.
+        fault_mode_noise_var`); None: nothing.
     """
 
     g: MeasurementFn
     noise_cov: np.ndarray
     angle_idx: tuple[int, ...] = ()
     name: str = "measurement"
+    mode_noise_var: np.ndarray | None = None
     noise_sqrt: np.ndarray = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "noise_cov", _checked_cov("noise_cov", self.noise_cov))
         object.__setattr__(self, "noise_sqrt", psd_sqrt(self.noise_cov))
+        if self.mode_noise_var is not None:
+            var = np.array(self.mode_noise_var, dtype=float)
+            if var.ndim != 2 or var.shape[1] != self.nz or not np.all(var >= 0.0):
+                raise ValueError(
+                    f"mode_noise_var: expected non-negative variances of shape (modes, {self.nz}),"
+                    f" got shape {var.shape}"
+                )
+            var.setflags(write=False)
+            object.__setattr__(self, "mode_noise_var", var)
+
+    def added_cov(self, batch: int, additive: bool) -> np.ndarray:
+        """``(batch, nz, nz)``: what each filter adds to its ``P_zz`` (``R`` when ``additive``)."""
+        base = self.noise_cov if additive else np.zeros((self.nz, self.nz))
+        out = np.repeat(base[None], batch, axis=0)
+        if self.mode_noise_var is not None:
+            if self.mode_noise_var.shape[0] != batch:
+                raise ValueError(
+                    f"{self.name}: mode_noise_var has {self.mode_noise_var.shape[0]} modes, "
+                    f"the bank {batch}"
+                )
+            idx = np.arange(self.nz)
+            out[:, idx, idx] += self.mode_noise_var
+        return out
 
     @property
     def nz(self) -> int:

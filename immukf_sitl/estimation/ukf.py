@@ -183,7 +183,7 @@ class UnscentedKalmanFilter:
         self._consider = np.array(process.consider_idx, dtype=np.int64)
         # per measurement model: (model, angle mask, R as added by the update); and the
         # augmented form's constant measurement-noise sigma points per (model, batch)
-        self._output_constants: dict[int, tuple] = {}
+        self._output_constants: dict[tuple[int, int], tuple] = {}
         self._w_points: dict[tuple[int, int], tuple] = {}
 
     def initial_estimate(self, t_s: float, mean: np.ndarray, cov: np.ndarray) -> UkfEstimate:
@@ -350,7 +350,7 @@ class UnscentedKalmanFilter:
         augmented = self.noise_form == "augmented"
         batch, nx = pred_mean.shape
         model = measurement.model
-        z_angle, added_r = self._output_constants_of(model)
+        z_angle, added_r = self._output_constants_of(model, batch)
         if augmented:
             w_points = self._measurement_noise_points(model, weights.spread, nx + proc.nv, batch)
             z_points = model.g(t_next_s, x_points, u, w_points)  # eq. (15)
@@ -404,17 +404,16 @@ class UnscentedKalmanFilter:
             nis, True,
         )  # fmt: skip
 
-    def _output_constants_of(self, model: MeasurementModel) -> tuple[np.ndarray, np.ndarray]:
-        """Angle mask of the output and the ``R`` the update adds (zeros when augmented)."""
-        entry = self._output_constants.get(id(model))
+    def _output_constants_of(
+        self, model: MeasurementModel, batch: int
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Angle mask of the output and what each filter adds to ``P_zz`` (``(batch, nz, nz)``)."""
+        key = (id(model), batch)
+        entry = self._output_constants.get(key)
         if entry is None or entry[0] is not model:
-            added_r = model.noise_cov if self.noise_form == "additive" else _zeros(model.nz)
-            entry = (
-                model,
-                angle_mask(model.nz, model.angle_idx),
-                np.ascontiguousarray(added_r, dtype=float),
-            )
-            self._output_constants[id(model)] = entry
+            added = model.added_cov(batch, additive=self.noise_form == "additive")
+            entry = (model, angle_mask(model.nz, model.angle_idx), np.ascontiguousarray(added))
+            self._output_constants[key] = entry
         return entry[1], entry[2]
 
     def _measurement_noise_points(

@@ -22,6 +22,7 @@ A wrong file gets one line naming the file, the field and what was expected
                                    # fault set), drawn from the seed (see "Random fault times")
     filter_model: paper            # optional axis: paper (12 states) | real-air (30 states),
                                    # or a list of both (as --filter-model)
+    fault_modes: untrusted         # optional: untrusted | zero (the paper's), as --fault-modes
     report: paper                  # optional: paper (Tables 1-3 beside the paper's) | matrix
                                    # (the real-air matrix: identification within 1 s, false
                                    # declarations per hour, attitude IMM/UKF-2, per air)
@@ -75,7 +76,12 @@ import numpy as np
 import yaml
 
 from immukf_sitl.errors import UserError
-from immukf_sitl.estimation.fault_modes import FaultMode, all_fault_modes, single_fault_modes
+from immukf_sitl.estimation.fault_modes import (
+    FAULT_SIGNATURES,
+    FaultMode,
+    all_fault_modes,
+    single_fault_modes,
+)
 from immukf_sitl.scenario import FaultSpec, Scenario, ScenarioError, parse_scenario
 from immukf_sitl.service.filter_models import FILTER_MODELS as MODEL_TYPES
 from immukf_sitl.service.filters import VARIANTS
@@ -163,6 +169,8 @@ class RunSpec:
     failure : FailureCriterion
     filter_model : str
         ``paper`` or ``real-air``: the estimator's filter model (as ``--filter-model``).
+    fault_modes : str
+        ``untrusted`` or ``zero``: what its fault modes predict (as ``--fault-modes``).
     """
 
     index: int
@@ -176,6 +184,7 @@ class RunSpec:
     scenario: Scenario
     failure: FailureCriterion
     filter_model: str = "paper"
+    fault_modes: str = "untrusted"
 
     @property
     def run_id(self) -> str:
@@ -212,6 +221,7 @@ class Campaign:
     path: str = ""
     filter_models: tuple[str, ...] = ("paper",)
     report: str = "paper"
+    fault_modes: str = "untrusted"
 
     @property
     def digest(self) -> str:
@@ -228,6 +238,7 @@ class Campaign:
             "air": [(a.name, a.blocks) for a in self.air],
             "failure": self.failure.__dict__,
             "filter_models": self.filter_models,
+            "fault_modes": self.fault_modes,
         }
         return json.dumps(data, sort_keys=True, default=str)
 
@@ -312,6 +323,7 @@ class Campaign:
                     scenario=self.scenario_for(mode, replicate, fault_t_s, air),
                     failure=self.failure,
                     filter_model=model,
+                    fault_modes=self.fault_modes,
                 )
             )
         return tuple(out)
@@ -338,6 +350,7 @@ class Campaign:
                     scenario=self.scenario_for(mode, 0, t_s, air),
                     failure=self.failure,
                     filter_model=self.filter_models[0],
+                    fault_modes=self.fault_modes,
                 )
         return None
 
@@ -534,7 +547,10 @@ def parse_campaign(data: Any, path: str = "<campaign>") -> Campaign:
         path=path,
         filter_models=_filter_models(r),
         report=r.string("report", "paper"),
+        fault_modes=r.string("fault_modes", "untrusted"),
     )
+    if campaign.fault_modes not in FAULT_SIGNATURES:
+        r.fail("fault_modes", " or ".join(FAULT_SIGNATURES), campaign.fault_modes)
     if campaign.report not in REPORT_KINDS:
         r.fail("report", " or ".join(REPORT_KINDS), campaign.report)
     r.done()

@@ -107,9 +107,9 @@ def _identity(spec: RunSpec) -> dict[str, object]:
     }
 
 
-def run_filter_model(name: str) -> FilterModel:
-    """The estimator's filter model of a campaign's ``filter_model`` (as ``--filter-model``)."""
-    return filter_model(name)
+def run_filter_model(spec: RunSpec) -> FilterModel:
+    """The estimator's filter model of a run: its ``filter_model`` with its ``fault_modes``."""
+    return filter_model(spec.filter_model, fault_signature=spec.fault_modes)
 
 
 def fly(spec: RunSpec) -> tuple[InProcessRun, FailureMonitor]:
@@ -118,7 +118,7 @@ def fly(spec: RunSpec) -> tuple[InProcessRun, FailureMonitor]:
     config = PipelineConfig(
         variant=spec.variant,
         true_mode=spec.mode if spec.variant == "ukf1" else None,
-        filter_model=run_filter_model(spec.filter_model),
+        filter_model=run_filter_model(spec),
         sensors=scenario.sensors.spec_sheet(),
     )
     monitor = FailureMonitor(spec.failure, config.detector.settle_s)

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from immukf_sitl.estimation.fault_modes import FaultMode
+from immukf_sitl.fault_kinds import FAULT_KINDS
 from immukf_sitl.mavlink.codec import euler_to_quaternion, heartbeat_message
 from immukf_sitl.mavlink.wire import MavMessage, mavlink
 from immukf_sitl.service.detection import DetectionEvent
@@ -27,6 +28,10 @@ from immukf_sitl.service.pipeline import EstimateOutput
 
 _CHANNEL_TAGS = {"x": "AX", "y": "AY", "z": "AZ", "p": "P", "q": "Q", "r": "R"}
 FAULT_EVENT_NAME = "IMM_FAULT"
+#: NAMED_VALUE_INT of a named failure: 1 + its index in ``fault_kinds.FAULT_KINDS``
+KIND_EVENT_NAME = "IMM_KIND"
+#: NAMED_VALUE_FLOAT of a named failure's size (NaN for a zero)
+SIZE_EVENT_NAME = "IMM_SIZE"
 #: when an event's STATUSTEXT is sent again, after the event (s of the IMU clock)
 STATUSTEXT_REPEATS_S = (1.0, 2.0)
 
@@ -69,16 +74,24 @@ def heartbeat() -> MavMessage:
 
 
 def event_text(event: DetectionEvent) -> MavMessage:
-    """STATUSTEXT of a detection (WARNING) or clearing (INFO)."""
+    """STATUSTEXT of a detection or naming (WARNING) or clearing (INFO)."""
     severity = (
-        mavlink.MAV_SEVERITY_WARNING if event.kind == "detected" else mavlink.MAV_SEVERITY_INFO
+        mavlink.MAV_SEVERITY_INFO if event.kind == "cleared" else mavlink.MAV_SEVERITY_WARNING
     )
     return mavlink.MAVLink_statustext_message(severity, event.text().encode())
 
 
 def event_messages(event: DetectionEvent) -> list[MavMessage]:
-    """STATUSTEXT and IMM_FAULT of a detection or clearing."""
+    """STATUSTEXT and IMM_FAULT of a detection or clearing; of a naming, IMM_KIND and IMM_SIZE."""
     ms = int(round(event.t_s * 1000.0))
+    if event.kind == "named":
+        kind = FAULT_KINDS.index(event.failure) + 1 if event.failure in FAULT_KINDS else 0
+        size = math.nan if event.size is None else float(event.size)
+        return [
+            event_text(event),
+            mavlink.MAVLink_named_value_int_message(ms, KIND_EVENT_NAME.encode(), kind),
+            mavlink.MAVLink_named_value_float_message(ms, SIZE_EVENT_NAME.encode(), size),
+        ]
     value = event.mode.bits if event.kind == "detected" else 0
     return [
         event_text(event),

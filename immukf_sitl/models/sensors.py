@@ -66,6 +66,11 @@ class ImuSpec:
         0.2 mg and 10 deg/h).
     bias_time_constant_s : float
         Correlation time of the wander (s).
+    accel_range_mps2, gyro_range_radps : float
+        Full-scale range of the spec sheet: a channel reads within +-range (defaults: the
+        +-16 g and +-2000 deg/s of the MEMS IMUs on common autopilot boards). A failed channel
+        may read anything in it: the untrusted fault modes' width
+        (:mod:`immukf_sitl.estimation.fault_modes`).
     """
 
     accel_sigma_mps2: float = 0.0245
@@ -78,6 +83,8 @@ class ImuSpec:
     accel_bias_instability_mps2: float = 0.002
     gyro_bias_instability_radps: float = 5e-5
     bias_time_constant_s: float = 300.0
+    accel_range_mps2: float = 16.0 * 9.80665
+    gyro_range_radps: float = math.radians(2000.0)
 
     def __post_init__(self) -> None:
         sigmas = {
@@ -91,6 +98,9 @@ class ImuSpec:
         for name, value in sigmas.items():
             if not (math.isfinite(value) and value >= 0.0):
                 raise ValueError(f"{name}: expected a value >= 0, got {value}")
+        for name in ("accel_range_mps2", "gyro_range_radps"):
+            if not getattr(self, name) > 0.0:
+                raise ValueError(f"{name}: expected > 0, got {getattr(self, name)}")
         if not self.bias_time_constant_s > 0.0:
             raise ValueError(f"bias_time_constant_s: expected > 0, got {self.bias_time_constant_s}")
         _check_vector3("accel_bias_mps2", self.accel_bias_mps2)
@@ -100,6 +110,11 @@ class ImuSpec:
     def sigmas(self) -> np.ndarray:
         """White-noise sigmas of ``[f_x, f_y, f_z, p, q, r]`` (m/s^2, rad/s)."""
         return np.array([self.accel_sigma_mps2] * 3 + [self.gyro_sigma_radps] * 3)
+
+    @property
+    def ranges(self) -> np.ndarray:
+        """Full-scale ranges of ``[f_x, f_y, f_z, p, q, r]`` (m/s^2, rad/s)."""
+        return np.array([self.accel_range_mps2] * 3 + [self.gyro_range_radps] * 3)
 
     def noise_cov(self) -> np.ndarray:
         """``R`` of the six IMU channels (6x6, diagonal)."""

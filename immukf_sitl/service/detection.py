@@ -1,24 +1,31 @@
-"""Fault declaration from mode probabilities: threshold, dwell, clearing, settling time.
+"""Fault declaration from mode probabilities: threshold, dwell, signature, clearing, settling.
 
 The IMM is decision free (paper, section 2.D); a user needs a decision. A fault mode is
 declared when its probability stays at or above ``threshold`` for ``dwell_s`` *and* its failed
-channels read what a zeroed sensor reads: over the last ``zero_window`` samples,
-``sum z^2 / sigma^2`` within the ``zero_quantile`` of a chi-square with that many degrees of
-freedom (the paper's fault is zero plus the sensor's noise). The filters' probabilities weigh a
-channel against the model's prediction of it; on a real airframe in turbulence that model is
-wrong by more than the sensor noise, and a mode that ignores the channel the model explains
-worst wins, whatever the channel reads. A healthy channel whose true value sits within about a
-noise sigma of zero for the whole window passes the test too: there the probabilities decide
-alone. It is cleared
-when its probability stays below ``clear_threshold`` for ``clear_dwell_s`` *and* the declared
-channels have shown they are alive: at least ``alive_samples`` readings more than
-``alive_sigmas`` noise sigmas from zero since the declaration. A zeroed sensor reads zero plus
-its noise, beyond 5 sigma once in about 1.7 million samples (4.8 h at 100 Hz), so a sensor that
-stays dead is never cleared, nor replaced by another mode's declaration, whatever the
-probabilities do while it cannot be told from a healthy one (a y accelerometer in coordinated
-flight, a q gyro on a straight leg). Nothing is
-declared during the first ``settle_s`` after the estimator starts (its covariances are still
-converging from the initial alignment).
+channels show the mode's signature over the last ``signature_window`` samples, a chi-square
+test at ``signature_quantile`` of the sum of the mode's normalised squared residuals on them:
+
+- an **untrusted** mode (the default): the readings are *inconsistent* with the mode's own
+  prediction of the channel from the other sensors (the sum beyond the quantile). The
+  probabilities already weigh this; the window makes one outlier that tips them short of a
+  declaration.
+- a **zero** mode (the paper's): the readings are *consistent* with zero plus noise (the sum
+  within the quantile). The filters' probabilities weigh a channel against the model's
+  prediction of it; on a real airframe in turbulence that model is wrong by more than the
+  sensor noise, and a zero mode that ignores the channel the model explains worst wins,
+  whatever the channel reads. A healthy channel whose true value sits within about a noise
+  sigma of zero for the whole window passes the test too: there the probabilities decide
+  alone.
+
+A declaration is cleared when its probability stays below ``clear_threshold`` for
+``clear_dwell_s``. For a zero mode the declared channels must also have shown life: at least
+``alive_samples`` readings more than ``alive_sigmas`` noise sigmas from zero since the
+declaration. A zeroed sensor reads beyond 5 sigma once in about 1.7 million samples (4.8 h at
+100 Hz), so a zero mode's declaration, which cannot be told from a healthy one while the true
+value is near zero, is never cleared nor replaced while the sensor stays dead. An untrusted
+mode's probability falls only on readings that agree with the other sensors, so it needs no
+such latch. Nothing is declared during the first ``settle_s`` after the estimator starts (its
+covariances are still converging from the initial alignment).
 """
 
 from __future__ import annotations
@@ -30,7 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import chi2
 
-from immukf_sitl.estimation.fault_modes import FaultMode
+from immukf_sitl.estimation.fault_modes import FAULT_SIGNATURES, FaultMode
 
 
 @dataclass(frozen=True)
@@ -44,8 +51,8 @@ class DetectorConfig:
     settle_s: float = 3.0
     alive_sigmas: float = 5.0
     alive_samples: int = 3
-    zero_window: int = 20
-    zero_quantile: float = 0.999
+    signature_window: int = 20
+    signature_quantile: float = 0.999
 
     def __post_init__(self) -> None:
         if not 0.0 < self.clear_threshold <= self.threshold < 1.0:
@@ -55,40 +62,72 @@ class DetectorConfig:
             )
         if min(self.dwell_s, self.clear_dwell_s, self.settle_s) < 0.0:
             raise ValueError("detection dwell and settle times must be >= 0")
-        if self.zero_window < 1 or not 0.0 < self.zero_quantile < 1.0:
+        if self.signature_window < 1 or not 0.0 < self.signature_quantile < 1.0:
             raise ValueError(
-                "zero test: expected zero_window >= 1 and 0 < zero_quantile < 1, got "
-                f"{self.zero_window} and {self.zero_quantile}"
+                "signature test: expected signature_window >= 1 and 0 < signature_quantile < 1,"
+                f" got {self.signature_window} and {self.signature_quantile}"
             )
+
+
+#: what a named failure's size is, per kind, for the STATUSTEXT (``{unit}``: the channel's)
+_SIZE_WORDING = {
+    "stuck": "stuck at {size:.3g} {unit}",
+    "bias": "bias {size:+.3g} {unit}",
+    "drift": "drift {size:+.3g} {unit}/s",
+    "scale": "gain {size:.3g}",
+    "noise": "noise x{size:.3g}",
+    "spikes": "spikes {size:.3g} {unit}",
+}
 
 
 @dataclass(frozen=True)
 class DetectionEvent:
-    """A fault declared (``kind="detected"``) or cleared (``kind="cleared"``)."""
+    """A fault declared (``kind="detected"``), named (``"named"``) or cleared (``"cleared"``).
+
+    A naming carries the failure's kind and size (:mod:`immukf_sitl.service.fault_naming`).
+    """
 
     kind: str
     mode: FaultMode
     t_s: float
     probability: float
+    failure: str | None = None
+    size: float | None = None
 
     def to_json(self) -> dict[str, object]:
-        """``{"kind", "mode", "t_s", "probability"}`` (mode by name, time to 0.1 ms)."""
-        return {
+        """``{"kind", "mode", "t_s", "probability"}`` (+ ``failure``, ``size`` when named)."""
+        out: dict[str, object] = {
             "kind": self.kind,
             "mode": self.mode.name,
             "t_s": round(self.t_s, 4),
             "probability": self.probability,
         }
+        if self.failure is not None:
+            out["failure"] = self.failure
+            out["size"] = self.size
+        return out
 
     @classmethod
     def from_json(cls, data: dict) -> DetectionEvent:
         """Back from :meth:`to_json`."""
         return cls(
-            data["kind"], FaultMode.from_name(data["mode"]), data["t_s"], data["probability"]
+            data["kind"],
+            FaultMode.from_name(data["mode"]),
+            data["t_s"],
+            data["probability"],
+            data.get("failure"),
+            data.get("size"),
         )
 
     def text(self) -> str:
         """STATUSTEXT wording, at most 50 characters."""
+        if self.kind == "named" and self.failure is not None:
+            unit = "rad/s" if set(self.mode.channels) <= {"p", "q", "r"} else "m/s2"
+            what = _SIZE_WORDING.get(self.failure, "reads {kind}")
+            words = what.format(size=self.size, unit=unit, kind=self.failure)
+            if self.failure == "zero":
+                words = "reads zero"
+            return f"IMM: {self.mode.description} {words}, p={self.probability:.2f}"[:50]
         verb = "detected" if self.kind == "detected" else "cleared"
         return f"IMM: {self.mode.description} fault {verb}, p={self.probability:.2f}"[:50]
 
@@ -104,25 +143,40 @@ class FaultDetector:
     config : DetectorConfig
     start_s : float
         Time the estimator started (the settling period counts from it).
+    signature : str
+        What the modes predict on their failed channels: ``untrusted`` or ``zero``
+        (:data:`~immukf_sitl.estimation.fault_modes.FAULT_SIGNATURES`).
     """
 
-    def __init__(self, modes: Sequence[FaultMode], config: DetectorConfig, start_s: float):
+    def __init__(
+        self,
+        modes: Sequence[FaultMode],
+        config: DetectorConfig,
+        start_s: float,
+        signature: str = "untrusted",
+    ):
+        if signature not in FAULT_SIGNATURES:
+            raise ValueError(
+                f"signature: expected one of {', '.join(FAULT_SIGNATURES)}, got {signature!r}"
+            )
         self.modes = tuple(modes)
         self.config = config
         self.start_s = start_s
+        self.signature = signature
         self.declared: FaultMode | None = None
         self._above_since: dict[int, float] = {}
         self._below_since: float | None = None
         self._alive = 0  # readings of the declared channels beyond the noise since declared
-        self._recent: deque[np.ndarray] = deque(maxlen=config.zero_window)
-        # chi-square limits for 1 .. zero_window readings
-        dof = np.arange(1, config.zero_window + 1)
-        self._zero_limit = chi2.ppf(config.zero_quantile, dof)
+        self._recent: deque[np.ndarray] = deque(maxlen=config.signature_window)
+        self._residuals: deque[np.ndarray] = deque(maxlen=config.signature_window)
+        # chi-square limits for 1 .. signature_window readings
+        dof = np.arange(1, config.signature_window + 1)
+        self._limit = chi2.ppf(config.signature_quantile, dof)
 
     def reads_zero(self, mode: FaultMode) -> bool:
         """Whether every failed channel of ``mode`` read zero plus noise over the window.
 
-        Over the readings there are when fewer than ``zero_window`` have been seen (the
+        Over the readings there are when fewer than ``signature_window`` have been seen (the
         detector's first samples); True with none (the probabilities decide alone).
         """
         n = len(self._recent)
@@ -130,7 +184,27 @@ class FaultDetector:
             return True
         failed = mode.healthy_mask == 0.0
         energy = np.sum(np.square(np.array(self._recent)), axis=0)
-        return bool(np.all(energy[failed] <= self._zero_limit[n - 1]))
+        return bool(np.all(energy[failed] <= self._limit[n - 1]))
+
+    def reads_inconsistent(self, j: int) -> bool:
+        """Whether a failed channel of mode ``j`` disagreed with the mode's prediction of it.
+
+        The sum over the window of the mode's normalised squared residuals on a failed
+        channel beyond the chi-square quantile; True with no residuals (the probabilities
+        decide alone).
+        """
+        n = len(self._residuals)
+        if n == 0:
+            return True
+        failed = self.modes[j].healthy_mask == 0.0
+        energy = np.sum(np.array(self._residuals)[:, j, :], axis=0)
+        return bool(np.any(energy[failed] > self._limit[n - 1]))
+
+    def shows_signature(self, j: int) -> bool:
+        """The declaration test of mode ``j`` for the bank's signature."""
+        if self.signature == "zero":
+            return self.reads_zero(self.modes[j])
+        return self.reads_inconsistent(j)
 
     def update(
         self,
@@ -138,12 +212,15 @@ class FaultDetector:
         probabilities: np.ndarray,
         imu: np.ndarray | None = None,
         imu_sigmas: np.ndarray | None = None,
+        residuals: np.ndarray | None = None,
     ) -> list[DetectionEvent]:
         """Feed the probabilities at ``t_s``; returns the events this sample caused.
 
-        ``imu`` (the six readings) and ``imu_sigmas`` (their noise sigmas) show whether a
-        declared channel is alive; without them a declared fault clears on the probabilities
-        alone.
+        ``imu`` (the six readings) and ``imu_sigmas`` (their noise sigmas) feed the zero test
+        and show whether a declared zero mode's channel is alive; without them a declared fault
+        clears on the probabilities alone. ``residuals`` ``(r, 6)`` are the modes' normalised
+        squared residuals (:meth:`AircraftEstimator.channel_residuals`) the untrusted test
+        reads.
         """
         cfg = self.config
         events: list[DetectionEvent] = []
@@ -152,6 +229,8 @@ class FaultDetector:
         if imu is not None and imu_sigmas is not None:
             n = len(imu_sigmas)
             self._recent.append(np.asarray(imu, dtype=float)[:n] / np.asarray(imu_sigmas))
+        if residuals is not None:
+            self._residuals.append(np.asarray(residuals, dtype=float))
         if self.declared is not None and imu is not None and imu_sigmas is not None:
             readings = np.abs(np.asarray(imu)[: len(imu_sigmas)])
             mask = self.declared.healthy_mask == 0.0
@@ -164,7 +243,7 @@ class FaultDetector:
                 self._above_since.setdefault(j, t_s)
             else:
                 self._above_since.pop(j, None)
-        alive = imu_sigmas is None or self._alive >= cfg.alive_samples
+        alive = self.signature != "zero" or imu_sigmas is None or self._alive >= cfg.alive_samples
         if self.declared is not None:
             j = self.modes.index(self.declared)
             p = float(probabilities[j])
@@ -185,7 +264,7 @@ class FaultDetector:
             return events
         for j, since in sorted(self._above_since.items(), key=lambda kv: -probabilities[kv[0]]):
             mode = self.modes[j]
-            if mode == self.declared or t_s - since < cfg.dwell_s or not self.reads_zero(mode):
+            if mode == self.declared or t_s - since < cfg.dwell_s or not self.shows_signature(j):
                 continue
             if self.declared is not None:
                 events.append(

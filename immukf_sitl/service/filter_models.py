@@ -33,6 +33,7 @@ from typing import ClassVar
 import numpy as np
 
 from immukf_sitl.estimation import (
+    FAULT_SIGNATURES,
     FaultMode,
     ImmEstimate,
     ImmEstimator,
@@ -156,7 +157,11 @@ class FilterModel(ABC):
 
     Every model has ``process_noise_factor`` (the white process noise, in IMU noise sigmas),
     ``onset_probability`` (per step, fault-free to each fault), ``recovery_probability`` (per
-    step, a fault back to fault-free) and ``probability_floor`` (the IMM's floor on a mode).
+    step, a fault back to fault-free), ``probability_floor`` (the IMM's floor on a mode) and
+    ``fault_signature``, what a fault mode predicts on its failed channel
+    (:data:`~immukf_sitl.estimation.fault_modes.FAULT_SIGNATURES`): ``untrusted`` (the default:
+    anything within the sensor's range, so every way a sensor fails fits) or ``zero`` (the
+    paper's zero plus noise, for its study).
     """
 
     name: ClassVar[str]
@@ -164,6 +169,7 @@ class FilterModel(ABC):
     onset_probability: float
     recovery_probability: float
     probability_floor: float
+    fault_signature: str
 
     def transition(self, modes: Sequence[FaultMode]) -> np.ndarray:
         """``T[i, j] = P(M(k+1)=j | M(k)=i)`` (eq. 3) over ``modes`` (fault-free first)."""
@@ -191,6 +197,13 @@ class FilterModel(ABC):
         self, aero: AeroModel, sensors: SensorSpec, modes: Sequence[FaultMode]
     ) -> ModelDynamics:
         """The model for the airframe ``aero`` flies, the sensors' spec sheet and the modes."""
+
+    def _check_signature(self) -> None:
+        if self.fault_signature not in FAULT_SIGNATURES:
+            raise ValueError(
+                f"fault modes: expected one of {', '.join(FAULT_SIGNATURES)}, got "
+                f"{self.fault_signature!r}"
+            )
 
     def _check_positive(self, **values: float) -> None:
         for name, value in values.items():
@@ -274,9 +287,11 @@ class PaperModel(FilterModel):
     onset_probability: float = 1e-4
     recovery_probability: float = 0.25
     probability_floor: float = 1e-6
+    fault_signature: str = "untrusted"
 
     def __post_init__(self) -> None:
         self._check_positive(process_noise_factor=self.process_noise_factor)
+        self._check_signature()
 
     def prior_probabilities(self, modes: Sequence[FaultMode], transition: np.ndarray) -> np.ndarray:
         """The chain's stationary distribution."""
@@ -393,8 +408,10 @@ class RealAirModel(FilterModel):
     adaptive_turbulence: bool = True
     turbulence_floor: float = 0.1
     turbulence_averaging_s: float = 10.0
+    fault_signature: str = "untrusted"
 
     def __post_init__(self) -> None:
+        self._check_signature()
         if self.design_turbulence not in TURBULENCE_LEVELS:
             raise ValueError(
                 f"design_turbulence: expected one of {', '.join(TURBULENCE_LEVELS)}, "
@@ -484,9 +501,13 @@ class _RealAirDynamics(ModelDynamics):
         return ScaledSigmaPoints(self.model.sigma_point_alpha, 2.0, kappa)
 
     def gate(self) -> ObservabilityGate | None:
-        """A failed channel scores only while the model predicts it clear of zero (a bank)."""
+        """Zero modes (a bank): a failed channel scores only while predicted clear of zero.
+
+        An untrusted mode needs none: it loses ``ln(V / S) / 2`` nats a step to the healthy
+        mode while the channel reads what the model predicts, whatever that value is.
+        """
         modes = self.modes
-        if len(modes) == 1:
+        if len(modes) == 1 or self.model.fault_signature != "zero":
             return None
         flown = self.flown
 
@@ -562,7 +583,7 @@ FILTER_MODELS: dict[str, type[FilterModel]] = {
 }
 
 
-def filter_model(name: str, **settings: float) -> FilterModel:
+def filter_model(name: str, **settings: float | str) -> FilterModel:
     """The model called ``name`` (``--filter-model``) with its preset, changed by ``settings``."""
     if name not in FILTER_MODELS:
         raise ValueError(f"filter model: expected one of {', '.join(FILTER_MODELS)}, got {name!r}")

@@ -34,7 +34,8 @@ from immukf_sitl.estimation import (
     MeasurementModel,
     ProcessModel,
     UnscentedKalmanFilter,
-    fault_masked_output,
+    fault_mode_noise_var,
+    fault_mode_output,
     single_fault_modes,
 )
 from immukf_sitl.estimation.ukf import NoiseForm
@@ -61,13 +62,19 @@ GPS_COURSE_CHANNEL = 4
 
 
 def aero_measurement_models(
-    model: AeroModel | AugmentedAeroModel, modes: Sequence[FaultMode], sensors: SensorSpec
+    model: AeroModel | AugmentedAeroModel,
+    modes: Sequence[FaultMode],
+    sensors: SensorSpec,
+    signature: str = "untrusted",
 ) -> tuple[MeasurementModel, MeasurementModel]:
     """Mode-batched output models (eq. 2): IMU alone, and IMU followed by GPS.
 
-    The GPS position is the receiver's, wandering error included (a state); its white ``R`` is
-    the receiver's driving noise (the per-fix increment of that error, B&M eq. 7.17).
+    ``signature`` is what a fault mode predicts on its failed channels
+    (:func:`fault_mode_output`); an untrusted mode's width is the IMU's range. The GPS position
+    is the receiver's, wandering error included (a state); its white ``R`` is the receiver's
+    driving noise (the per-fix increment of that error, B&M eq. 7.17).
     """
+    ranges = sensors.imu.ranges
 
     def imu(t_s: float, x: np.ndarray, u: np.ndarray, w: np.ndarray | None) -> np.ndarray:
         return model.imu(t_s, x, u[1])
@@ -76,16 +83,20 @@ def aero_measurement_models(
         return np.concatenate([model.imu(t_s, x, u[1]), model.gps(t_s, x, u[1])])
 
     imu_only = MeasurementModel(
-        fault_masked_output(imu, modes), sensors.imu.noise_cov(), name="imu"
+        fault_mode_output(imu, modes, signature),
+        sensors.imu.noise_cov(),
+        name="imu",
+        mode_noise_var=fault_mode_noise_var(modes, signature, ranges),
     )
     gps_cov = np.zeros((11, 11))
     gps_cov[:6, :6] = sensors.imu.noise_cov()
     gps_cov[6:, 6:] = sensors.gps.noise_cov()
     with_gps = MeasurementModel(
-        fault_masked_output(imu_gps, modes, n_extra=5),
+        fault_mode_output(imu_gps, modes, signature, n_extra=5),
         gps_cov,
         angle_idx=(6 + GPS_COURSE_CHANNEL,),
         name="imu+gps",
+        mode_noise_var=fault_mode_noise_var(modes, signature, ranges, n_extra=5),
     )
     return imu_only, with_gps
 
@@ -160,6 +171,17 @@ class _Bank:
 
     def start_air(self) -> TurbulenceEstimate | None:
         """What the variant knows of the air at start-up (None: nothing to learn)."""
+        return None
+
+    @property
+    def fault_signature(self) -> str:
+        """What the bank's fault modes predict on their failed channels (none: zero)."""
+        return "zero"
+
+    def channel_innovations(
+        self, estimate: VariantEstimate
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        """Per-mode IMU innovations (:meth:`AircraftEstimator.channel_innovations`); None: none."""
         return None
 
     def start(
@@ -240,6 +262,30 @@ class AircraftEstimator(_Bank):
     def start_air(self) -> TurbulenceEstimate | None:
         """The filter model's knowledge of the air at start-up."""
         return self.dynamics.start_air()
+
+    @property
+    def fault_signature(self) -> str:
+        """What the bank's fault modes predict on their failed channels."""
+        return self.filter_model.fault_signature
+
+    def channel_innovations(
+        self, estimate: VariantEstimate
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        """Each mode's IMU innovations ``(r, 6)`` and their variances without the mode's width.
+
+        The residual of a mode's own prediction of each channel and the variance of its
+        prediction plus the sensor noise: for an untrusted mode's failed channel, how far the
+        reading is from what the other sensors say it should be; for a zero mode's, how far
+        from zero. None on a predict-only step.
+        """
+        bank = estimate.filter
+        if bank.innovations is None or bank.innovation_var is None:
+            return None
+        var = bank.innovation_var[:, :6]
+        width = self.imu_model.mode_noise_var
+        if width is not None:
+            var = var - width[:, :6]
+        return bank.innovations[:, :6], np.maximum(var, np.finfo(float).tiny)
 
     def initial_estimate(
         self,
@@ -335,7 +381,9 @@ def build_aero_estimator(
     )
     floor = filter_model.probability_floor if len(modes) > 1 else 0.0
     imm = ImmEstimator(ukf, filter_model.transition(modes), floor, dynamics.gate())
-    imu_model, imu_gps_model = aero_measurement_models(dynamics.flown, modes, sensors)
+    imu_model, imu_gps_model = aero_measurement_models(
+        dynamics.flown, modes, sensors, filter_model.fault_signature
+    )
     return AircraftEstimator(
         variant, tuple(modes), imm, imu_model, imu_gps_model, filter_model, dynamics
     )

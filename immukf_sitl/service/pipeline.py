@@ -37,6 +37,7 @@ from immukf_sitl.models.sensors import IMU_PERIOD_S, SensorSpec
 from immukf_sitl.samples import ActuatorSample, GpsSample, ImuSample
 from immukf_sitl.service.alignment import NavSolution, align
 from immukf_sitl.service.detection import DetectionEvent, DetectorConfig, FaultDetector
+from immukf_sitl.service.fault_naming import FaultNamer
 from immukf_sitl.service.filter_models import FilterModel, PaperModel
 from immukf_sitl.service.filters import (
     Estimator,
@@ -148,6 +149,7 @@ class EstimatorPipeline:
         self.estimator: Estimator | None = None
         self.estimate: VariantEstimate | None = None
         self.detector: FaultDetector | None = None
+        self._namer = FaultNamer(config.sensors.imu.sigmas)
         self._controls: np.ndarray | None = None
         self._gps_queue: deque[GpsSample] = deque(maxlen=16)
         self._last_imu_s: float | None = None
@@ -338,7 +340,9 @@ class EstimatorPipeline:
         self._nav = None
         self.estimator = estimator
         if self.detector is None:
-            self.detector = FaultDetector(estimator.modes, cfg.detector, t_s)
+            self.detector = FaultDetector(
+                estimator.modes, cfg.detector, t_s, estimator.fault_signature
+            )
         else:
             self.detector.start_s = t_s  # settle again; what was declared stays declared
         self._restart_at_s = t_s + cfg.detector.settle_s
@@ -353,6 +357,34 @@ class EstimatorPipeline:
             self.estimate = self.estimator.step(
                 self.estimate, previous_s + k * IMU_PERIOD_S, self._controls, nothing
             )
+
+    def _decide(self, t_s: float, est: VariantEstimate, imu: np.ndarray) -> list[DetectionEvent]:
+        """The detector's events at this step, and the naming of a declared failure when due.
+
+        An untrusted mode's declaration is named (:mod:`immukf_sitl.service.fault_naming`)
+        from the readings of the window after it; a zero mode's failure is the zero it tests.
+        """
+        assert self.estimator is not None and self.detector is not None
+        innovations = self.estimator.channel_innovations(est)
+        residuals = None if innovations is None else innovations[0] ** 2 / innovations[1]
+        events = self.detector.update(
+            t_s, est.mode_probabilities, imu, self.config.sensors.imu.sigmas, residuals
+        )
+        named = None
+        if innovations is not None:
+            named = self._namer.observe(t_s, imu, *innovations)
+        for event in events:
+            if event.kind == "cleared":
+                self._namer.cancel()
+            elif event.kind == "detected" and self.detector.signature == "untrusted":
+                j = self.estimator.modes.index(event.mode)
+                channel = int(np.flatnonzero(event.mode.healthy_mask == 0.0)[0])
+                self._namer.declared(j, channel, t_s)
+        declared = self.detector.declared
+        if named is not None and declared is not None:
+            p = float(est.mode_probabilities[self.estimator.modes.index(declared)])
+            events.append(DetectionEvent("named", declared, t_s, p, named.kind, named.size))
+        return events
 
     def _step(self, t_s: float, imu: np.ndarray, gps: np.ndarray | None) -> EstimateOutput:
         assert self.estimator is not None and self.detector is not None
@@ -382,9 +414,7 @@ class EstimatorPipeline:
             self.counters.stale_actuator_steps += 1
             events = []
         else:
-            events = self.detector.update(
-                t_s, est.mode_probabilities, imu, self.config.sensors.imu.sigmas
-            )
+            events = self._decide(t_s, est, imu)
         return EstimateOutput(
             t_s,
             nav,

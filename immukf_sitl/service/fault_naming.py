@@ -1,0 +1,170 @@
+"""Naming a declared failure: which way the channel failed (the fault kind) and by how much.
+
+Once an untrusted mode is declared its filter no longer uses the failed channel, so its
+prediction of that channel ``h`` (from the other sensors, variance ``s2`` with the sensor
+noise) is an independent estimate of what the channel should read. The readings ``z`` of the
+:data:`NAMING_WINDOW_S` after the declaration are then explained by each kind of
+:mod:`immukf_sitl.fault_kinds` in turn, and the kind that explains them best names the failure:
+
+- ``stuck``: the readings do not move (their spread below a tenth of the sensor's noise sigma,
+  which a live sensor shows one window in never); size: the held value;
+- ``zero``: ``sum z^2 / R`` within the chi-square quantile :data:`ZERO_QUANTILE`; size: none;
+- ``spikes``: some readings beyond :data:`SPIKE_SIGMAS` of the prediction, at most
+  :data:`MAX_SPIKE_FRACTION` of them, and the others consistent with it; size: the median
+  spike size;
+- otherwise the best by the Bayesian information criterion of the residual ``e = z - h``
+  with ``e ~ N(m, v)``: ``bias`` (``m = b``), ``drift`` (``m = a + c t``), ``scale``
+  (``m = (g - 1) h``) and ``noise`` (``m = 0``, ``v = s2 + (k^2 - 1) R``); sizes ``b`` (in the
+  channel's unit), ``c`` (per second), ``g`` and ``k``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import minimize_scalar
+from scipy.stats import chi2
+
+__all__ = [
+    "NAMING_WINDOW_S",
+    "FailureName",
+    "FaultNamer",
+    "classify_failure",
+]
+
+#: how long after a declaration the readings are gathered before the failure is named (s)
+NAMING_WINDOW_S = 1.0
+#: the zero test's quantile (as the detector's)
+ZERO_QUANTILE = 0.999
+#: a reading this many sigmas from the prediction is a spike (a healthy one: 1 in 1.7 million)
+SPIKE_SIGMAS = 5.0
+#: more outliers than this are not spikes but a changed channel
+MAX_SPIKE_FRACTION = 0.3
+#: readings whose spread is below this many noise sigmas are not a live sensor's
+STUCK_SPREAD_SIGMAS = 0.1
+
+
+@dataclass(frozen=True)
+class FailureName:
+    """A failure's kind and size (None where the kind has no size)."""
+
+    kind: str
+    size: float | None
+
+
+def classify_failure(
+    t_s: np.ndarray, z: np.ndarray, h: np.ndarray, s2: np.ndarray, noise_sigma: float
+) -> FailureName:
+    """The kind and size of a failed channel from its readings and the healthy prediction.
+
+    Parameters
+    ----------
+    t_s : ndarray, shape (n,)
+        Sample times (s).
+    z : ndarray, shape (n,)
+        The channel's readings.
+    h : ndarray, shape (n,)
+        The declared mode's prediction of the channel from the other sensors.
+    s2 : ndarray, shape (n,)
+        Variance of ``z - h`` for a healthy channel (prediction and sensor noise).
+    noise_sigma : float
+        The sensor's white-noise sigma.
+    """
+    t, z, h, s2 = (np.asarray(a, dtype=float) for a in (t_s, z, h, s2))
+    n = z.size
+    if n < 3:
+        raise ValueError(f"classify_failure: expected at least 3 samples, got {n}")
+    r = noise_sigma**2
+    if np.std(z) < STUCK_SPREAD_SIGMAS * noise_sigma:
+        return FailureName("stuck", float(np.mean(z)))
+    if np.sum(z * z) / r <= chi2.ppf(ZERO_QUANTILE, n):
+        return FailureName("zero", None)
+    e = z - h
+    out = np.abs(e) > SPIKE_SIGMAS * np.sqrt(s2)
+    if 0 < np.count_nonzero(out) <= MAX_SPIKE_FRACTION * n:
+        inliers = ~out
+        if np.sum(e[inliers] ** 2 / s2[inliers]) <= chi2.ppf(ZERO_QUANTILE, int(inliers.sum())):
+            return FailureName("spikes", float(np.median(np.abs(e[out]))))
+    candidates = [_bias(e, s2), _drift(t, e, s2), _scale(e, h, s2), _noise(e, s2, r)]
+    best = max(candidates, key=lambda c: c[0] - 0.5 * c[1] * math.log(n))
+    return FailureName(best[2], best[3])
+
+
+def _gaussian(e: np.ndarray, mean: np.ndarray | float, var: np.ndarray) -> float:
+    return float(-0.5 * np.sum((e - mean) ** 2 / var + np.log(2.0 * np.pi * var)))
+
+
+def _bias(e: np.ndarray, s2: np.ndarray) -> tuple[float, int, str, float]:
+    w = 1.0 / s2
+    b = float(np.sum(w * e) / np.sum(w))
+    return _gaussian(e, b, s2), 1, "bias", b
+
+
+def _drift(t: np.ndarray, e: np.ndarray, s2: np.ndarray) -> tuple[float, int, str, float]:
+    w = 1.0 / s2
+    basis = np.column_stack([np.ones_like(t), t - t.mean()])
+    coef = np.linalg.lstsq(basis * np.sqrt(w)[:, None], e * np.sqrt(w), rcond=None)[0]
+    return _gaussian(e, basis @ coef, s2), 2, "drift", float(coef[1])
+
+
+def _scale(e: np.ndarray, h: np.ndarray, s2: np.ndarray) -> tuple[float, int, str, float]:
+    w = 1.0 / s2
+    denominator = float(np.sum(w * h * h))
+    gain_minus_1 = float(np.sum(w * e * h) / denominator) if denominator > 0.0 else 0.0
+    return _gaussian(e, gain_minus_1 * h, s2), 1, "scale", 1.0 + gain_minus_1
+
+
+def _noise(e: np.ndarray, s2: np.ndarray, r: float) -> tuple[float, int, str, float]:
+    def cost(log_k2: float) -> float:
+        return -_gaussian(e, 0.0, s2 + (math.exp(log_k2) - 1.0) * r)
+
+    fit = minimize_scalar(cost, bounds=(0.0, math.log(1e6)), method="bounded")
+    return -float(fit.fun), 1, "noise", math.sqrt(math.exp(float(fit.x)))
+
+
+class FaultNamer:
+    """Gathers each step's readings and predictions; names a declaration once its window is in.
+
+    Parameters
+    ----------
+    noise_sigmas : ndarray, shape (6,)
+        The IMU channels' white-noise sigmas.
+    window_s : float
+        How long after a declaration to gather (:data:`NAMING_WINDOW_S`).
+    """
+
+    def __init__(self, noise_sigmas: np.ndarray, window_s: float = NAMING_WINDOW_S) -> None:
+        self.noise_sigmas = np.asarray(noise_sigmas, dtype=float)
+        self.window_s = window_s
+        self._pending: tuple[int, int, float] | None = None  # mode, channel, declared at
+        self._samples: deque[tuple[float, float, float, float]] = deque()
+
+    def declared(self, mode_index: int, channel: int, t_s: float) -> None:
+        """Start gathering for mode ``mode_index``'s failed ``channel``, declared at ``t_s``."""
+        self._pending = (mode_index, channel, t_s)
+        self._samples.clear()
+
+    def cancel(self) -> None:
+        """Forget the pending declaration (it was cleared or replaced)."""
+        self._pending = None
+        self._samples.clear()
+
+    def observe(
+        self, t_s: float, imu: np.ndarray, innovations: np.ndarray, variances: np.ndarray
+    ) -> FailureName | None:
+        """Feed one step; returns the failure's name once the window after it is full."""
+        if self._pending is None:
+            return None
+        j, i, since = self._pending
+        z = float(imu[i])
+        if not math.isfinite(z):
+            return None
+        self._samples.append((t_s, z, z - float(innovations[j, i]), float(variances[j, i])))
+        if t_s - since < self.window_s - 1e-9 or len(self._samples) < 3:
+            return None
+        t, zs, hs, s2 = (np.array(c) for c in zip(*self._samples, strict=True))
+        self.cancel()
+        return classify_failure(t, zs, hs, s2, float(self.noise_sigmas[i]))
