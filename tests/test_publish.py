@@ -3,8 +3,11 @@
 import numpy as np
 
 from immukf_sitl.estimation.fault_modes import FaultMode, single_fault_modes
+from immukf_sitl.fault_kinds import FAULT_KINDS
 from immukf_sitl.mavlink.publish import (
     FAULT_EVENT_NAME,
+    KIND_EVENT_NAME,
+    SIZE_EVENT_NAME,
     STATUSTEXT_REPEATS_S,
     OutputRates,
     Publisher,
@@ -68,3 +71,39 @@ def test_a_newer_event_supersedes_the_pending_repeats() -> None:
     assert [t for t, text in texts if text == cleared.text()] == [
         1.5 + dt for dt in (0.0, *STATUSTEXT_REPEATS_S)
     ]
+
+
+def test_a_naming_sends_its_words_kind_and_size_and_no_fault_record() -> None:
+    mode = FaultMode.from_name("q")
+    detected = DetectionEvent("detected", mode, 1.0, 0.97)
+    named = DetectionEvent("named", mode, 2.0, 0.99, "stuck", 0.21)
+    publisher = Publisher(OutputRates())
+    sent = []
+    for k in range(300):
+        t_s = k * DT_S
+        event = {100: detected, 200: named}.get(k)
+        sent += [
+            (round(t_s, 6), m)
+            for m in publisher.messages(output(t_s, (event,) if event else ()))
+            if m.get_type() in ("STATUSTEXT", "NAMED_VALUE_INT", "NAMED_VALUE_FLOAT")
+        ]
+    at_2 = [m for t, m in sent if t == 2.0]
+    assert [m.text for m in at_2 if m.get_type() == "STATUSTEXT"] == [
+        "IMM: q gyro stuck at 0.21 rad/s, p=0.99"
+    ]
+    ints = {m.name: m.value for m in at_2 if m.get_type() == "NAMED_VALUE_INT"}
+    assert ints == {KIND_EVENT_NAME: FAULT_KINDS.index("stuck") + 1}
+    floats = [m for m in at_2 if m.get_type() == "NAMED_VALUE_FLOAT" and m.name == SIZE_EVENT_NAME]
+    assert len(floats) == 1 and floats[0].value == np.float32(0.21)
+    faults = [
+        m for _, m in sent if m.get_type() == "NAMED_VALUE_INT" and m.name == FAULT_EVENT_NAME
+    ]
+    assert len(faults) == 1  # the detection's only
+
+
+def test_naming_words_fit_a_statustext_for_every_kind() -> None:
+    for kind, size in [("zero", None), ("stuck", -0.123456), ("bias", 2.0), ("drift", 0.3),
+                       ("scale", 0.5), ("noise", 5.0), ("spikes", 0.3)]:  # fmt: skip
+        for mode in MODES[1:]:
+            text = DetectionEvent("named", mode, 1.0, 0.99, kind, size).text()
+            assert len(text) <= 50 and text.endswith("p=0.99"), text

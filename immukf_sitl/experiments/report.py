@@ -91,6 +91,8 @@ class FaultOutcome:
     observable_t_s: float | None
     detected_t_s: float | None
     detection_delay_s: float | None
+    named_kind: str | None = None
+    named_size: float | None = None
 
     def to_json(self) -> dict[str, object]:
         """The JSON row (keys as documented in README)."""
@@ -102,6 +104,8 @@ class FaultOutcome:
             "observable_t_s": self.observable_t_s,
             "detected_t_s": self.detected_t_s,
             "detection_delay_s": self.detection_delay_s,
+            "named_kind": self.named_kind,
+            "named_size": self.named_size,
         }
 
 
@@ -140,7 +144,13 @@ class Summary:
             "scenario": self.scenario,
             "faults": [f.to_json() for f in self.faults],
             "detections": [
-                {"mode": e.mode.name, "t_s": _ms(e.t_s), "probability": e.probability}
+                {
+                    "mode": e.mode.name,
+                    "t_s": _ms(e.t_s),
+                    "probability": e.probability,
+                    "kind": e.failure,
+                    "size": e.size,
+                }
                 for e in self.detections
             ],
             "clearings": [
@@ -224,6 +234,17 @@ def estimation_errors(
     return out
 
 
+def _named_detections(events: Sequence[DetectionEvent]) -> tuple[DetectionEvent, ...]:
+    """The detections, each with the failure kind and size of the naming that followed it."""
+    out: list[DetectionEvent] = []
+    for event in events:
+        if event.kind == "detected":
+            out.append(event)
+        elif event.kind == "named" and out and out[-1].mode == event.mode:
+            out[-1] = dataclasses.replace(out[-1], failure=event.failure, size=event.size)
+    return tuple(out)
+
+
 def summarize(
     scenario_name: str,
     faults: Sequence[FaultSpec],
@@ -245,7 +266,7 @@ def summarize(
     true_imu = np.array(
         [np.concatenate([s.specific_force_mps2, s.rates_radps]) for s in truth]
     ).reshape(-1, 6)
-    detections = tuple(e for e in events if e.kind == "detected")
+    detections = _named_detections(events)
     first_estimate_s = float(track.attitude_t_s[0]) if track.attitude_t_s.size else 0.0
     outcomes = []
     for fault in faults:
@@ -263,6 +284,8 @@ def summarize(
                 observable_t_s=_ms(observable),
                 detected_t_s=None if first is None else _ms(first.t_s),
                 detection_delay_s=_ms(delay),
+                named_kind=None if first is None else first.failure,
+                named_size=None if first is None else first.size,
             )
         )
     summary = Summary(

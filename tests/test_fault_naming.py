@@ -1,0 +1,73 @@
+"""Naming a declared failure: each kind, recovered from synthetic readings with its size."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from immukf_sitl.service.fault_naming import FaultNamer, classify_failure
+
+SIGMA = 0.00227  # the gyro's noise (rad/s)
+PRED_SIGMA = 0.002  # the declared mode's prediction error of the channel
+N = 100  # 1 s at 100 Hz
+
+
+def _flight(rng):
+    """A true rate in a manoeuvre, the mode's prediction of it, and the healthy reading."""
+    t = 30.0 + 0.01 * np.arange(N)
+    truth = 0.12 + 0.1 * np.sin(2.0 * np.pi * 0.7 * (t - 30.0))
+    h = truth + PRED_SIGMA * rng.standard_normal(N)
+    healthy = truth + SIGMA * rng.standard_normal(N)
+    return t, truth, h, healthy
+
+
+S2 = np.full(N, SIGMA**2 + PRED_SIGMA**2)
+
+
+@pytest.mark.parametrize(
+    ("kind", "size", "make"),
+    [
+        ("stuck", 0.21, lambda t, truth, y, rng: np.full(N, 0.21)),
+        ("zero", None, lambda t, truth, y, rng: SIGMA * rng.standard_normal(N)),
+        ("bias", 0.0524, lambda t, truth, y, rng: y + 0.0524),
+        ("drift", 0.05, lambda t, truth, y, rng: y + 0.05 * (t - 29.7)),
+        ("scale", 0.5, lambda t, truth, y, rng: 0.5 * y),
+        ("noise", 8.0, lambda t, truth, y, rng: y + np.sqrt(63.0) * SIGMA * rng.standard_normal(N)),
+        ("spikes", 0.3, lambda t, truth, y, rng: y + 0.3 * (np.arange(N) % 33 == 7)),
+    ],
+)
+def test_each_kind_is_named_with_its_size_within_20_percent(kind, size, make):
+    for seed in range(5):
+        rng = np.random.default_rng(seed)
+        t, truth, h, healthy = _flight(rng)
+        named = classify_failure(t, make(t, truth, healthy, rng), h, S2, SIGMA)
+        assert named.kind == kind, (seed, named)
+        if size is None:
+            assert named.size is None
+        else:
+            assert named.size == pytest.approx(size, rel=0.2), (seed, named)
+
+
+def test_the_namer_names_a_declaration_once_its_window_is_in():
+    rng = np.random.default_rng(3)
+    t, truth, h, healthy = _flight(rng)
+    namer = FaultNamer(np.array([0.0245] * 3 + [SIGMA] * 3), window_s=0.5)
+    nu = np.zeros((7, 6))
+    var = np.full((7, 6), S2[0])
+    assert namer.observe(t[0], np.zeros(6), nu, var) is None  # nothing declared
+    namer.declared(5, 4, t[0])
+    names = []
+    for k in range(N):
+        imu = np.zeros(6)
+        imu[4] = healthy[k] + 0.0524
+        nu[5, 4] = imu[4] - h[k]
+        names.append(namer.observe(t[k], imu, nu, var))
+    got = [(k, n) for k, n in enumerate(names) if n is not None]
+    assert len(got) == 1 and got[0][0] == 50  # 0.5 s after the declaration
+    assert got[0][1].kind == "bias"
+    assert got[0][1].size == pytest.approx(0.0524, rel=0.2)
+
+
+def test_too_few_samples_is_an_error():
+    with pytest.raises(ValueError, match="at least 3 samples"):
+        classify_failure(np.zeros(2), np.zeros(2), np.zeros(2), np.ones(2), SIGMA)
