@@ -190,10 +190,10 @@ class FilterOptions:
             "--fault-modes",
             dest="fault_signature",
             choices=FAULT_SIGNATURES,
-            default="untrusted",
-            help="what a fault mode predicts on its failed channel: untrusted (anything in the "
-            "sensor's range, so zeroed, stuck, biased, drifting, scaled and noisy sensors all "
-            "fit; default) or zero (the paper's zero plus noise, for its study; "
+            default="zero",
+            help="what a fault mode predicts on its failed channel: zero (the paper's zero plus "
+            "noise; default) or untrusted (anything in the sensor's range, so zeroed, stuck, "
+            "biased, drifting, scaled and noisy sensors all fit, and the failure is named; "
             "docs/design/detection-and-tuning.md)",
         )
         for flag, record, attribute, text in cls._NUMERIC:
@@ -247,7 +247,7 @@ class FilterOptions:
             detector = DetectorConfig(**values["detector"])
             model = filter_model(
                 getattr(args, "filter_model", "paper"),
-                fault_signature=getattr(args, "fault_signature", "untrusted"),
+                fault_signature=getattr(args, "fault_signature", "zero"),
                 **values["filter_model"],
             )
             model.transition((FaultMode(0), FaultMode(1)))  # validates the chain

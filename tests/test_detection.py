@@ -160,7 +160,7 @@ def test_an_untrusted_mode_is_declared_only_while_its_channel_disagrees_with_the
     declared; once the q readings sit 3 sigma off what the other sensors predict, it is, a full
     window later."""
     rng = np.random.default_rng(12)
-    det = FaultDetector(MODES, DetectorConfig(dwell_s=0.1, settle_s=0.0), 0.0)
+    det = FaultDetector(MODES, DetectorConfig(dwell_s=0.1, settle_s=0.0), 0.0, "untrusted")
     events = []
     for k in range(100):
         events += det.update(k * 0.01, _probs(0.99), residuals=_residuals(rng, 0.0))
@@ -176,7 +176,7 @@ def test_an_untrusted_mode_is_declared_only_while_its_channel_disagrees_with_the
 def test_the_untrusted_test_passes_a_consistent_channel_at_its_stated_rate():
     """Residuals that are chi-square(1) pass as inconsistent 1 - signature_quantile of the time."""
     cfg = DetectorConfig(signature_window=20, signature_quantile=0.99)
-    det = FaultDetector(MODES, cfg, 0.0)
+    det = FaultDetector(MODES, cfg, 0.0, "untrusted")
     rng = np.random.default_rng(6)
     q = MODES.index(MODES[5])
     flagged = 0
@@ -194,7 +194,7 @@ def test_an_untrusted_declaration_clears_on_the_probabilities_and_never_blocks_a
     leads with its own inconsistent channel replaces it at once."""
     rng = np.random.default_rng(13)
     cfg = DetectorConfig(dwell_s=0.0, settle_s=0.0, clear_dwell_s=0.5)
-    det = FaultDetector(MODES, cfg, 0.0)
+    det = FaultDetector(MODES, cfg, 0.0, "untrusted")
     off = _residuals(rng, 5.0)
     events = det.update(0.0, _probs(0.99), residuals=off)
     for k in range(1, 60):
@@ -203,7 +203,7 @@ def test_an_untrusted_declaration_clears_on_the_probabilities_and_never_blocks_a
         ("detected", "q", 0.0),
         ("cleared", "q", 0.51),
     ]
-    det = FaultDetector(MODES, cfg, 0.0)
+    det = FaultDetector(MODES, cfg, 0.0, "untrusted")
     det.update(0.0, _probs(0.99), residuals=off)
     p_r = np.zeros(7)
     p_r[6] = 0.97

@@ -5,13 +5,13 @@ declared when its probability stays at or above ``threshold`` for ``dwell_s`` *a
 channels show the mode's signature over the last ``signature_window`` samples, a chi-square
 test at ``signature_quantile`` of the sum of the mode's normalised squared residuals on them:
 
-- an **untrusted** mode (the default): the readings are *inconsistent* with the mode's own
+- an **untrusted** mode: the readings are *inconsistent* with the mode's own
   prediction of the channel from the other sensors (the sum beyond the quantile). The
   probabilities already weigh this; the window makes one outlier that tips them short of a
   declaration.
-- a **zero** mode (the paper's): the readings are *consistent* with zero plus noise (the sum
-  within the quantile). The filters' probabilities weigh a channel against the model's
-  prediction of it; on a real airframe in turbulence that model is wrong by more than the
+- a **zero** mode (the paper's, the default): the readings are *consistent* with zero plus
+  noise (the sum within the quantile). The filters' probabilities weigh a channel against the
+  model's prediction of it; on a real airframe in turbulence that model is wrong by more than the
   sensor noise, and a zero mode that ignores the channel the model explains worst wins,
   whatever the channel reads. A healthy channel whose true value sits within about a noise
   sigma of zero for the whole window passes the test too: there the probabilities decide
@@ -144,7 +144,7 @@ class FaultDetector:
     start_s : float
         Time the estimator started (the settling period counts from it).
     signature : str
-        What the modes predict on their failed channels: ``untrusted`` or ``zero``
+        What the modes predict on their failed channels: ``zero`` or ``untrusted``
         (:data:`~immukf_sitl.estimation.fault_modes.FAULT_SIGNATURES`).
     """
 
@@ -153,7 +153,7 @@ class FaultDetector:
         modes: Sequence[FaultMode],
         config: DetectorConfig,
         start_s: float,
-        signature: str = "untrusted",
+        signature: str = "zero",
     ):
         if signature not in FAULT_SIGNATURES:
             raise ValueError(

@@ -159,9 +159,9 @@ class FilterModel(ABC):
     ``onset_probability`` (per step, fault-free to each fault), ``recovery_probability`` (per
     step, a fault back to fault-free), ``probability_floor`` (the IMM's floor on a mode) and
     ``fault_signature``, what a fault mode predicts on its failed channel
-    (:data:`~immukf_sitl.estimation.fault_modes.FAULT_SIGNATURES`): ``untrusted`` (the default:
-    anything within the sensor's range, so every way a sensor fails fits) or ``zero`` (the
-    paper's zero plus noise, for its study).
+    (:data:`~immukf_sitl.estimation.fault_modes.FAULT_SIGNATURES`): ``zero`` (the paper's zero
+    plus noise; the default) or ``untrusted`` (anything within the sensor's range, so every way
+    a sensor fails fits; docs/design/detection-and-tuning.md says what it does and misses).
     """
 
     name: ClassVar[str]
@@ -287,7 +287,7 @@ class PaperModel(FilterModel):
     onset_probability: float = 1e-4
     recovery_probability: float = 0.25
     probability_floor: float = 1e-6
-    fault_signature: str = "untrusted"
+    fault_signature: str = "zero"
 
     def __post_init__(self) -> None:
         self._check_positive(process_noise_factor=self.process_noise_factor)
@@ -408,7 +408,7 @@ class RealAirModel(FilterModel):
     adaptive_turbulence: bool = True
     turbulence_floor: float = 0.1
     turbulence_averaging_s: float = 10.0
-    fault_signature: str = "untrusted"
+    fault_signature: str = "zero"
 
     def __post_init__(self) -> None:
         self._check_signature()

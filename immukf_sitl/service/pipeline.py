@@ -24,6 +24,7 @@ re-seeded from the fault-free one (paper, section 2.A).
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections import deque
 from dataclasses import dataclass, field
@@ -362,7 +363,8 @@ class EstimatorPipeline:
         """The detector's events at this step, and the naming of a declared failure when due.
 
         An untrusted mode's declaration is named (:mod:`immukf_sitl.service.fault_naming`)
-        from the readings of the window after it; a zero mode's failure is the zero it tests.
+        from the readings of the window after it; a zero mode's failure is the zero its
+        declaration tested.
         """
         assert self.estimator is not None and self.detector is not None
         innovations = self.estimator.channel_innovations(est)
@@ -373,10 +375,12 @@ class EstimatorPipeline:
         named = None
         if innovations is not None:
             named = self._namer.observe(t_s, imu, *innovations)
-        for event in events:
+        for k, event in enumerate(events):
             if event.kind == "cleared":
                 self._namer.cancel()
-            elif event.kind == "detected" and self.detector.signature == "untrusted":
+            elif event.kind == "detected" and self.detector.signature == "zero":
+                events[k] = dataclasses.replace(event, failure="zero")  # what the test showed
+            elif event.kind == "detected":
                 j = self.estimator.modes.index(event.mode)
                 channel = int(np.flatnonzero(event.mode.healthy_mask == 0.0)[0])
                 self._namer.declared(j, channel, t_s)
