@@ -156,17 +156,19 @@ def _residuals(rng, q_sigmas: float) -> np.ndarray:
 
 
 def test_an_untrusted_mode_is_declared_only_while_its_channel_disagrees_with_the_others():
-    """A q mode at 0.99 on readings that agree with the model (a model error elsewhere) is not
-    declared; once the q readings sit 3 sigma off what the other sensors predict, it is, a full
-    window later."""
+    """A q mode at 0.99 on readings that agree with the model (a model error elsewhere) and do
+    not read zero is not declared; once the q readings sit 3 sigma off what the other sensors
+    predict, it is, within a window."""
     rng = np.random.default_rng(12)
     det = FaultDetector(MODES, DetectorConfig(dwell_s=0.1, settle_s=0.0), 0.0, "untrusted")
     events = []
     for k in range(100):
-        events += det.update(k * 0.01, _probs(0.99), residuals=_residuals(rng, 0.0))
+        imu = _imu(rng, 0.05)  # q reads a turn, not zero
+        events += det.update(k * 0.01, _probs(0.99), imu, SIGMAS, _residuals(rng, 0.0))
     assert events == []
     for k in range(100, 200):
-        events += det.update(k * 0.01, _probs(0.99), residuals=_residuals(rng, 3.0))
+        imu = _imu(rng, 0.05)
+        events += det.update(k * 0.01, _probs(0.99), imu, SIGMAS, _residuals(rng, 3.0))
     assert [(e.kind, e.mode.name) for e in events] == [("detected", "q")]
     # 20 samples at 3 sigma: sum ~ 20 * (1 + 9) = 200 against the limit 45.3, reached well
     # before the window is full

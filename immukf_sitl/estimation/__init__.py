@@ -8,6 +8,7 @@ from immukf_sitl.estimation.diagnostics import FilterDiagnostics
 from immukf_sitl.estimation.fault_modes import (
     FAULT_SIGNATURES,
     IMU_CHANNELS,
+    DeadOrAnyEvidence,
     FaultMode,
     ObservabilityGate,
     all_fault_modes,
@@ -27,6 +28,7 @@ from immukf_sitl.estimation.ukf import UkfEstimate, UnscentedKalmanFilter
 
 __all__ = [
     "ObservabilityGate",
+    "DeadOrAnyEvidence",
     "IMU_CHANNELS",
     "FaultMode",
     "FilterDiagnostics",

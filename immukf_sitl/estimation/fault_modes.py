@@ -314,3 +314,103 @@ class ObservabilityGate:
             healthy_fit = -0.5 * (nu * nu / s_healthy + np.log(2.0 * np.pi * s_healthy))
             out[j] += healthy_fit - zero_fit
         return out
+
+
+@dataclass(frozen=True)
+class DeadOrAnyEvidence:
+    """An untrusted mode scores its failed channel as "dead (reads zero) or reads anything".
+
+    The commonest failure of a sensor is to read zero plus its noise, and that is the sharpest
+    evidence a failure gives: a zero mode wins on it within a few samples where a mode that
+    only says "anything within the range" needs the reading ``sqrt(ln(V / S))`` sigmas from a
+    prediction that, in turbulence, is itself loose. So an untrusted mode's density of its
+    failed channel ``i`` is the mixture
+
+        ``p_j(z_i) = w N(z_i; 0, R_i) + (1 - w) N(nu_ji; 0, S_ji)``
+
+    with ``S_ji`` the UKF's variance of the channel's innovation, ``V`` included (the
+    "anything" part), and ``w`` = :attr:`dead_weight`. Where mode ``j``'s own prediction of the
+    channel is within ``n_sigma`` of zero, a dead sensor cannot be told from a healthy one; there
+    the zero part is scored as the fault-free mode scores the channel (its marginal likelihood,
+    weight 1: the zero hypothesis says nothing for or against the mode), as
+    :class:`ObservabilityGate` does for the zero modes. The UKF's likelihood (eq. 25) holds the
+    channel's term ``N(nu_ji; 0, S_ji)`` as a factor to within ``S / V`` (the wide channel is
+    nearly uncorrelated with the others), so that factor is swapped for the mixture.
+
+    Parameters
+    ----------
+    modes : sequence of FaultMode
+        The bank's modes, in batch order (the fault-free mode among them).
+    noise_var : ndarray, shape (6,)
+        ``R`` of the six IMU channels.
+    width_var : ndarray, shape (len(modes), 6)
+        The variance each mode adds to each channel (:func:`fault_mode_noise_var`).
+    dead_weight : float
+        Prior weight of "reads zero" among the ways the channel fails.
+    n_sigma : float
+        Observability threshold of the zero part, in sigmas of the mode's prediction.
+    """
+
+    modes: tuple[FaultMode, ...]
+    noise_var: np.ndarray
+    width_var: np.ndarray
+    dead_weight: float = 0.5
+    n_sigma: float = 3.0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "modes", tuple(self.modes))
+        object.__setattr__(self, "noise_var", np.asarray(self.noise_var, dtype=float))
+        object.__setattr__(self, "width_var", np.asarray(self.width_var, dtype=float))
+        if not 0.0 < self.dead_weight < 1.0:
+            raise ValueError(f"dead_weight: expected a value in (0, 1), got {self.dead_weight}")
+
+    @cached_property
+    def _failed(self) -> tuple[np.ndarray, np.ndarray]:
+        pairs = [(j, i) for j, m in enumerate(self.modes) for i in range(N_IMU) if m.bits >> i & 1]
+        return (
+            np.array([j for j, _ in pairs], dtype=np.intp),
+            np.array([i for _, i in pairs], dtype=np.intp),
+        )
+
+    @cached_property
+    def _healthy(self) -> int | None:
+        return next((j for j, m in enumerate(self.modes) if m.bits == 0), None)
+
+    def __call__(
+        self,
+        t_s: float,
+        predicted_mean: np.ndarray,
+        innovation: np.ndarray,
+        innovation_cov: np.ndarray,
+        z: np.ndarray,
+        u: np.ndarray,
+        log_likelihood: np.ndarray,
+    ) -> np.ndarray:
+        """The modes' log-likelihoods with each failed channel scored by the mixture.
+
+        Same arguments as :class:`ObservabilityGate`; ``predicted_mean`` and ``u`` are unused
+        (the mode's prediction of the channel is ``z - nu``).
+        """
+        modes, channels = self._failed
+        healthy = self._healthy
+        if healthy is None or modes.size == 0:
+            return log_likelihood
+        nu = innovation[modes, channels]
+        s_wide = innovation_cov[modes, channels, channels]
+        s_own = np.maximum(s_wide - self.width_var[modes, channels], np.finfo(float).tiny)
+        reading = z[channels]
+        own = reading - nu  # the mode's prediction of its failed channel
+        r = self.noise_var[channels]
+        log_any = -0.5 * (nu * nu / s_wide + np.log(2.0 * np.pi * s_wide))
+        log_zero = -0.5 * (reading * reading / r + np.log(2.0 * np.pi * r))
+        nu0 = innovation[healthy, channels]
+        s0 = innovation_cov[healthy, channels, channels]
+        log_healthy = -0.5 * (nu0 * nu0 / s0 + np.log(2.0 * np.pi * s0))
+        # observable: a dead sensor differs from this prediction (a NaN prediction is not)
+        observable = np.abs(own) > self.n_sigma * np.sqrt(s_own)
+        w = self.dead_weight
+        dead = np.where(observable, np.log(w) + log_zero, log_healthy)
+        mixture = np.logaddexp(dead, np.log1p(-w) + log_any)
+        out = np.array(log_likelihood, dtype=float)
+        np.add.at(out, modes, mixture - log_any)
+        return out

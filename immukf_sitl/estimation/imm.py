@@ -17,7 +17,7 @@ import numpy as np
 
 from immukf_sitl.estimation.angles import angle_mask
 from immukf_sitl.estimation.diagnostics import FilterDiagnostics
-from immukf_sitl.estimation.fault_modes import ObservabilityGate
+from immukf_sitl.estimation.fault_modes import DeadOrAnyEvidence, ObservabilityGate
 from immukf_sitl.estimation.models import Measurement, ProcessModel
 from immukf_sitl.estimation.ukf import UnscentedKalmanFilter
 
@@ -96,7 +96,7 @@ class ImmEstimator:
     probability_floor : float
         Lower bound on every mode probability after eq. (26), so that a mode ruled out can come
         back; 0 disables it (see :func:`immukf_sitl.estimation.kernels.floor_probabilities`).
-    evidence : ObservabilityGate, optional
+    evidence : ObservabilityGate or DeadOrAnyEvidence, optional
         Adjusts the mode-matched log-likelihoods before eq. (26) (e.g. so that a failed channel
         scores its mode only while observable); None uses them as they are.
     """
@@ -106,7 +106,7 @@ class ImmEstimator:
         ukf: UnscentedKalmanFilter,
         transition: np.ndarray,
         probability_floor: float = 0.0,
-        evidence: ObservabilityGate | None = None,
+        evidence: ObservabilityGate | DeadOrAnyEvidence | None = None,
     ) -> None:
         transition = np.array(transition, dtype=float)
         if transition.ndim != 2 or transition.shape[0] != transition.shape[1]:

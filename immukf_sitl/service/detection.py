@@ -6,9 +6,10 @@ channels show the mode's signature over the last ``signature_window`` samples, a
 test at ``signature_quantile`` of the sum of the mode's normalised squared residuals on them:
 
 - an **untrusted** mode: the readings are *inconsistent* with the mode's own
-  prediction of the channel from the other sensors (the sum beyond the quantile). The
-  probabilities already weigh this; the window makes one outlier that tips them short of a
-  declaration.
+  prediction of the channel from the other sensors (the sum beyond the quantile), or they read
+  zero plus noise as below (the mode's "dead or anything",
+  :class:`~immukf_sitl.estimation.fault_modes.DeadOrAnyEvidence`). The probabilities already
+  weigh this; the window makes one outlier that tips them short of a declaration.
 - a **zero** mode (the paper's, the default): the readings are *consistent* with zero plus
   noise (the sum within the quantile). The filters' probabilities weigh a channel against the
   model's prediction of it; on a real airframe in turbulence that model is wrong by more than the
@@ -201,10 +202,14 @@ class FaultDetector:
         return bool(np.any(energy[failed] > self._limit[n - 1]))
 
     def shows_signature(self, j: int) -> bool:
-        """The declaration test of mode ``j`` for the bank's signature."""
+        """The declaration test of mode ``j`` for the bank's signature.
+
+        An untrusted mode fits a dead channel or one that reads anything: its channel reads
+        zero plus noise, or disagrees with what the other sensors say it should read.
+        """
         if self.signature == "zero":
             return self.reads_zero(self.modes[j])
-        return self.reads_inconsistent(j)
+        return self.reads_zero(self.modes[j]) or self.reads_inconsistent(j)
 
     def update(
         self,

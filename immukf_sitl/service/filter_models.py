@@ -34,6 +34,7 @@ import numpy as np
 
 from immukf_sitl.estimation import (
     FAULT_SIGNATURES,
+    DeadOrAnyEvidence,
     FaultMode,
     ImmEstimate,
     ImmEstimator,
@@ -42,6 +43,7 @@ from immukf_sitl.estimation import (
     ObservabilityGate,
     ProcessModel,
     ScaledSigmaPoints,
+    fault_mode_noise_var,
 )
 from immukf_sitl.models.aero import AeroModel
 from immukf_sitl.models.airframe import AirframeUncertainty
@@ -120,8 +122,8 @@ class ModelDynamics(ABC):
         """The sigma-point scheme (eqs. 11-12)."""
 
     @abstractmethod
-    def gate(self) -> ObservabilityGate | None:
-        """What keeps a fault mode's evidence to the channels it can see, if anything."""
+    def gate(self) -> ObservabilityGate | DeadOrAnyEvidence | None:
+        """What corrects the fault modes' evidence on their failed channels, if anything."""
 
     @abstractmethod
     def augmented(self, mean: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -301,13 +303,30 @@ class PaperModel(FilterModel):
         self, aero: AeroModel, sensors: SensorSpec, modes: Sequence[FaultMode]
     ) -> ModelDynamics:
         """The rigid body of ``aero`` with white acceleration noise."""
-        return _PaperDynamics(aero, sensors, self)
+        return _PaperDynamics(aero, sensors, self, tuple(modes))
+
+
+def _untrusted_evidence(
+    model: FilterModel, sensors: SensorSpec, modes: tuple[FaultMode, ...]
+) -> DeadOrAnyEvidence | None:
+    """The "dead or anything" scoring of a bank of untrusted modes (None: zero modes, one mode)."""
+    if model.fault_signature != "untrusted" or len(modes) == 1:
+        return None
+    width = fault_mode_noise_var(modes, "untrusted", sensors.imu.ranges)
+    return DeadOrAnyEvidence(modes, np.diagonal(sensors.imu.noise_cov()), width)
 
 
 class _PaperDynamics(ModelDynamics):
     """The paper's model flown: the book's aircraft, nothing estimated beside the rigid body."""
 
-    def __init__(self, aero: AeroModel, sensors: SensorSpec, model: PaperModel) -> None:
+    def __init__(
+        self,
+        aero: AeroModel,
+        sensors: SensorSpec,
+        model: PaperModel,
+        modes: tuple[FaultMode, ...],
+    ) -> None:
+        self.model, self.sensors, self.modes = model, sensors, modes
         self.flown = aero
         q, additive = _white_noise(
             sensors, model.process_noise_factor, _ACCELERATION_ROWS, aero.nx, aero.dt_s
@@ -324,9 +343,9 @@ class _PaperDynamics(ModelDynamics):
         """Julier's points (the paper's unscented transform, eqs. 11-12)."""
         return JulierSigmaPoints(kappa)
 
-    def gate(self) -> None:
-        """None: every mode scores every channel, as in the paper."""
-        return None
+    def gate(self) -> DeadOrAnyEvidence | None:
+        """None for zero modes (as in the paper); "dead or anything" for untrusted ones."""
+        return _untrusted_evidence(self.model, self.sensors, self.modes)
 
     def augmented(self, mean: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The rigid-body state is the whole state."""
@@ -500,14 +519,16 @@ class _RealAirDynamics(ModelDynamics):
         """Van der Merwe's scaled points at ``alpha`` (beta 2, the Gaussian optimum)."""
         return ScaledSigmaPoints(self.model.sigma_point_alpha, 2.0, kappa)
 
-    def gate(self) -> ObservabilityGate | None:
-        """Zero modes (a bank): a failed channel scores only while predicted clear of zero.
+    def gate(self) -> ObservabilityGate | DeadOrAnyEvidence | None:
+        """What a bank's fault modes score their failed channels with.
 
-        An untrusted mode needs none: it loses ``ln(V / S) / 2`` nats a step to the healthy
-        mode while the channel reads what the model predicts, whatever that value is.
+        Zero modes: a failed channel scores only while predicted clear of zero. Untrusted
+        modes: "dead or anything" (:class:`DeadOrAnyEvidence`).
         """
         modes = self.modes
-        if len(modes) == 1 or self.model.fault_signature != "zero":
+        if self.model.fault_signature == "untrusted":
+            return _untrusted_evidence(self.model, self.sensors, modes)
+        if len(modes) == 1:
             return None
         flown = self.flown
 
