@@ -11,6 +11,7 @@ from scipy.stats import multivariate_normal, norm
 from toy_systems import identity_output, oscillator_bank
 
 from immukf_sitl.estimation import (
+    DeadOrAnyEvidence,
     Measurement,
     MeasurementModel,
     UnscentedKalmanFilter,
@@ -94,3 +95,62 @@ def test_the_untrusted_mode_wins_beyond_the_derived_number_of_sigmas(i, expected
 
     crossing = next(k / 100 for k in range(100, 1000) if gain(k / 100) > 0.0)
     assert crossing == pytest.approx(expected_sigmas, abs=0.1)
+
+
+def _bank_innovations(rng, modes, width):
+    """Innovations and covariances of a 7-mode bank as the UKF makes them (widths included)."""
+    r = len(modes)
+    nu = rng.normal(0.0, 0.01, (r, 6))
+    cov = np.empty((r, 6, 6))
+    for j in range(r):
+        a = rng.normal(0.0, 0.005, (6, 6))
+        cov[j] = a @ a.T + np.diag(ImuSpec().sigmas ** 2) + np.diag(width[j])
+        nu[j] += rng.normal(0.0, 1.0, 6) * np.sqrt(width[j])
+    return nu, cov
+
+
+def test_dead_or_any_swaps_the_wide_factor_for_the_mixture():
+    """Against a direct computation, channel by channel: observable channels mix N(z; 0, R)
+    and the wide density; unobservable ones mix the fault-free mode's marginal instead."""
+    modes = single_fault_modes()
+    imu = ImuSpec()
+    width = fault_mode_noise_var(modes, "untrusted", imu.ranges)
+    evidence = DeadOrAnyEvidence(modes, imu.sigmas**2, width, dead_weight=0.5, n_sigma=3.0)
+    rng = np.random.default_rng(8)
+    nu, cov = _bank_innovations(rng, modes, width)
+    z = rng.normal(0.0, 0.3, 6)
+    z[1] = 1e-4  # y near zero: a mode's prediction of it may sit within 3 sigma of zero
+    base = rng.normal(-50.0, 5.0, len(modes))
+    got = evidence(0.0, None, nu, cov, z, None, base)
+    assert got[0] == base[0]  # the fault-free mode is untouched
+    for j in range(1, len(modes)):
+        i = j - 1
+        s_wide = cov[j, i, i]
+        own = z[i] - nu[j, i]
+        wide = norm.logpdf(nu[j, i], 0.0, math.sqrt(s_wide))
+        if abs(own) > 3.0 * math.sqrt(cov[0, i, i]):
+            dead = math.log(0.5) + norm.logpdf(z[i], 0.0, imu.sigmas[i])
+        else:
+            dead = norm.logpdf(nu[0, i], 0.0, math.sqrt(cov[0, i, i]))
+        mixture = np.logaddexp(dead, math.log(0.5) + wide)
+        assert got[j] == pytest.approx(base[j] - wide + mixture, rel=1e-12, abs=1e-9)
+
+
+def test_a_dead_channel_scores_as_sharply_as_a_zero_mode():
+    """A q gyro reading zero plus noise where the mode predicts 0.1 rad/s: the untrusted mode's
+    channel term is the zero mode's less ln 2."""
+    modes = single_fault_modes()
+    imu = ImuSpec()
+    width = fault_mode_noise_var(modes, "untrusted", imu.ranges)
+    evidence = DeadOrAnyEvidence(modes, imu.sigmas**2, width)
+    z = np.array([0.0, 0.0, -9.8, 0.0, 0.0002, 0.0])
+    nu = np.zeros((7, 6))
+    cov = np.tile(np.diag(imu.sigmas**2 * 4.0), (7, 1, 1)) + width[:, :, None] * np.eye(6)
+    nu[5, 4] = z[4] - 0.1  # the q mode predicts 0.1 rad/s
+    nu[0, 4] = 0.0  # the fault-free mode has followed the dead gyro
+    got = evidence(0.0, None, nu, cov, z, None, np.zeros(7))
+    zero_mode = norm.logpdf(z[4], 0.0, imu.sigmas[4])
+    wide = norm.logpdf(nu[5, 4], 0.0, math.sqrt(cov[5, 4, 4]))
+    mixture = np.logaddexp(zero_mode + math.log(0.5), wide + math.log(0.5))
+    assert got[5] == pytest.approx(mixture - wide, abs=1e-9)
+    assert mixture == pytest.approx(zero_mode + math.log(0.5), abs=1e-3)  # the zero part rules

@@ -330,9 +330,10 @@ class DeadOrAnyEvidence:
 
     with ``S_ji`` the UKF's variance of the channel's innovation, ``V`` included (the
     "anything" part), and ``w`` = :attr:`dead_weight`. Where mode ``j``'s own prediction of the
-    channel is within ``n_sigma`` of zero, a dead sensor cannot be told from a healthy one; there
-    the zero part is scored as the fault-free mode scores the channel (its marginal likelihood,
-    weight 1: the zero hypothesis says nothing for or against the mode), as
+    channel is within ``n_sigma`` standard deviations of the fault-free mode's innovation of
+    zero (the test of :class:`ObservabilityGate`), a dead sensor cannot be told from a healthy
+    one; there the zero part is scored as the fault-free mode scores the channel (its marginal
+    likelihood, weight 1: the zero hypothesis says nothing for or against the mode), as
     :class:`ObservabilityGate` does for the zero modes. The UKF's likelihood (eq. 25) holds the
     channel's term ``N(nu_ji; 0, S_ji)`` as a factor to within ``S / V`` (the wide channel is
     nearly uncorrelated with the others), so that factor is swapped for the mixture.
@@ -348,7 +349,7 @@ class DeadOrAnyEvidence:
     dead_weight : float
         Prior weight of "reads zero" among the ways the channel fails.
     n_sigma : float
-        Observability threshold of the zero part, in sigmas of the mode's prediction.
+        Observability threshold of the zero part, in sigmas of the fault-free mode's innovation.
     """
 
     modes: tuple[FaultMode, ...]
@@ -397,7 +398,6 @@ class DeadOrAnyEvidence:
             return log_likelihood
         nu = innovation[modes, channels]
         s_wide = innovation_cov[modes, channels, channels]
-        s_own = np.maximum(s_wide - self.width_var[modes, channels], np.finfo(float).tiny)
         reading = z[channels]
         own = reading - nu  # the mode's prediction of its failed channel
         r = self.noise_var[channels]
@@ -407,7 +407,7 @@ class DeadOrAnyEvidence:
         s0 = innovation_cov[healthy, channels, channels]
         log_healthy = -0.5 * (nu0 * nu0 / s0 + np.log(2.0 * np.pi * s0))
         # observable: a dead sensor differs from this prediction (a NaN prediction is not)
-        observable = np.abs(own) > self.n_sigma * np.sqrt(s_own)
+        observable = np.abs(own) > self.n_sigma * np.sqrt(s0)
         w = self.dead_weight
         dead = np.where(observable, np.log(w) + log_zero, log_healthy)
         mixture = np.logaddexp(dead, np.log1p(-w) + log_any)
