@@ -62,6 +62,11 @@ def test_shipped_campaigns_expand_to_the_papers_study() -> None:
     none = next(r for r in runs if r.mode.name == "none")
     assert none.scenario.faults == ()
     assert len(load_campaign(QUICK).runs()) == 24
+    # the paper's study flies the paper's zero modes; a campaign says so, or gets the default
+    assert {r.fault_modes for r in load_campaign(QUICK).runs()} == {"zero"}
+    assert {r.fault_modes for r in parse_campaign(tiny(fault_modes="untrusted"), "c").runs()} == {
+        "untrusted"
+    }
 
 
 @pytest.mark.parametrize(
@@ -85,6 +90,7 @@ def test_shipped_campaigns_expand_to_the_papers_study() -> None:
         ({"filter_model": "exact"}, r"filter_model: expected paper or real-air, or a list"),
         ({"filter_model": ["paper", "paper"]}, r"filter_model: expected paper or real-air"),
         ({"report": "tables"}, r"report: expected paper or matrix, got 'tables'"),
+        ({"fault_modes": "stuck"}, r"fault_modes: expected untrusted or zero, got 'stuck'"),
     ],
 )
 def test_a_bad_campaign_gets_one_line_naming_the_field(changes: dict, message: str) -> None:
