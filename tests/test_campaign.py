@@ -507,3 +507,18 @@ def test_shipped_real_air_campaigns_are_issue_9s_matrix() -> None:
     assert all(r.scenario.airframe.uncertainty.aero == 0 for r in twin)
     twin_paper = load_campaign(CAMPAIGNS / "real_air_twin_paper.yaml").runs()
     assert [r.fault_t_s for r in twin_paper] == [r.fault_t_s for r in twin]
+
+
+def test_the_false_declaration_bound_is_the_exact_poisson_one() -> None:
+    """Zero events in T hours bound the rate by -ln(0.05) / T (about 3 / T); with events, the
+    Garwood bound, checked against the Poisson CDF it inverts."""
+    from scipy.stats import poisson
+
+    from immukf_sitl.experiments.campaign_summary import poisson_rate_upper_95
+
+    assert poisson_rate_upper_95(0, 1.339) == pytest.approx(-math.log(0.05) / 1.339)
+    assert poisson_rate_upper_95(0, 3.0) < 1.0  # the issue's "below 1 per hour" needs 3 h
+    for events in (1, 4):
+        bound = poisson_rate_upper_95(events, 2.0)
+        assert poisson.cdf(events, bound * 2.0) == pytest.approx(0.05, abs=1e-9)
+    assert math.isnan(poisson_rate_upper_95(0, 0.0))

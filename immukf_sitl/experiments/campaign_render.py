@@ -332,15 +332,17 @@ def _false_declaration_lines(groups: list[tuple[str, dict]]) -> list[str]:
     lines = [
         "\n**False declarations in fault-free flight** (IMM; from the end of the settling "
         "period to the fault, or to the end of a fault-free flight):\n",
-        "| air | fault-free flight (h) | declarations | per hour | runs with any | modes |",
-        "|---|---|---|---|---|---|",
+        "| air | fault-free flight (h) | declarations | per hour | 95 % upper bound per hour "
+        "| runs with any | modes |",
+        "|---|---|---|---|---|---|---|",
     ]
     for air, g in groups:
         f = g["false_declarations"]
         modes = ", ".join(f"{m} {n}" for m, n in f["by_mode"].items()) or "none"
         lines.append(
             f"| {air} | {_n(f['hours'], '.3f')} | {f['declarations']} | "
-            f"{_n(f['per_hour'], '.1f')} | {f['runs_with_declarations']}/{f['runs']} | "
+            f"{_n(f['per_hour'], '.1f')} | {_n(f.get('per_hour_upper_95'), '.2f')} | "
+            f"{f['runs_with_declarations']}/{f['runs']} | "
             f"{modes} |"
         )
     return lines

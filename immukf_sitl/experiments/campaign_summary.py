@@ -10,6 +10,8 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
+from scipy.stats import chi2
+
 from immukf_sitl.experiments.metrics import false_declaration_rate
 from immukf_sitl.experiments.tables import (
     Row,
@@ -92,6 +94,18 @@ def _identification(imm: Sequence[Row]) -> dict[str, object]:
     }
 
 
+def poisson_rate_upper_95(events: int, hours: float) -> float:
+    """The 95 % upper confidence bound of a Poisson rate (per hour) from ``events`` in ``hours``.
+
+    Exact (Garwood): ``chi2.ppf(0.95, 2 (events + 1)) / (2 hours)``; with no event it is
+    ``-ln(0.05) / hours``, about ``3 / hours``: zero false declarations in 1.34 h only say "below
+    2.2 per hour". NaN without flight time.
+    """
+    if not hours or hours <= 0.0:
+        return math.nan
+    return float(chi2.ppf(0.95, 2 * (events + 1)) / (2.0 * hours))
+
+
 def _false_declarations(imm: Sequence[Row]) -> dict[str, object]:
     rate = false_declaration_rate(imm)
     modes: dict[str, int] = {}
@@ -102,6 +116,9 @@ def _false_declarations(imm: Sequence[Row]) -> dict[str, object]:
         "declarations": int(rate["declarations"]),
         "hours": _number(rate["hours"]),
         "per_hour": _number(rate["per_hour"]),
+        "per_hour_upper_95": _number(
+            poisson_rate_upper_95(int(rate["declarations"]), rate["hours"])
+        ),
         "runs_with_declarations": sum(
             int(r["false_declarations_fault_free"] or 0) > 0 for r in imm
         ),
