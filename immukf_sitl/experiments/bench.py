@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from immukf_sitl.estimation.fault_modes import FAULT_SIGNATURES
 from immukf_sitl.models.aero import AeroModel
 from immukf_sitl.models.earth import NedOrigin
 from immukf_sitl.models.params import load_aircraft_params
@@ -90,6 +91,7 @@ def time_interleaved(
     form: str,
     warmup: int,
     filter_models: tuple[str, ...],
+    fault_modes: str = "zero",
 ) -> list[dict]:
     """Per-step times of our 7-mode IMM in one noise form, one bank per filter model.
 
@@ -100,7 +102,10 @@ def time_interleaved(
     banks = []
     for filter_model in filter_models:
         est = build_aero_estimator(
-            "imm", model, filter_model=make_filter_model(filter_model), noise_form=form
+            "imm",
+            model,
+            filter_model=make_filter_model(filter_model, fault_signature=fault_modes),
+            noise_form=form,
         )
         estimate = est.start(0.0, *est.augmented(data.x0, initial_cov()), data.controls[0])
         banks.append({"est": est, "estimate": estimate, "imu": [], "gps": [], "first": 0})
@@ -124,6 +129,7 @@ def time_interleaved(
             {
                 "form": form,
                 "filter_model": filter_model,
+                "fault_modes": fault_modes,
                 "states": est.imm.ukf.process.nx,
                 "modes": len(est.modes),
                 "steps": int(all_ns.size),
@@ -199,6 +205,7 @@ def run_bench(
     filterpy_steps: int,
     seed: int = 1,
     filter_models: tuple[str, ...] = ("paper",),
+    fault_modes: str = "zero",
 ) -> dict:
     """Run every measurement; returns the JSON-ready result.
 
@@ -212,7 +219,7 @@ def run_bench(
     results = [
         row
         for form in ("augmented", "additive")
-        for row in time_interleaved(model, data, form, warmup, tuple(filter_models))
+        for row in time_interleaved(model, data, form, warmup, tuple(filter_models), fault_modes)
     ]
     result: dict = {
         "benchmark": "7-mode IMM-UKF step over the 6-DOF Aerosonde model, 100 Hz IMU, 1 Hz GPS",
@@ -313,6 +320,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "alternating, with their ratio (default both)"
         ),
     )
+    parser.add_argument(
+        "--fault-modes",
+        choices=FAULT_SIGNATURES,
+        default="zero",
+        help="what the fault modes predict on their failed channel (as serve's; default zero)",
+    )
     parser.set_defaults(handler=_main)
 
 
@@ -332,7 +345,7 @@ def _main(args: argparse.Namespace) -> int:
             ) from None
     print(f"timing {args.steps} steps per form...", file=sys.stderr)
     models = FILTER_MODELS if args.filter_model == "both" else (args.filter_model,)
-    result = run_bench(args.steps, args.filterpy_steps, args.seed, models)
+    result = run_bench(args.steps, args.filterpy_steps, args.seed, models, args.fault_modes)
     print_human(result)
     if args.json:
         print(json.dumps(result))
