@@ -209,6 +209,20 @@ def _check_signature(signature: str) -> None:
         )
 
 
+def failed_channels(modes: Sequence[FaultMode]) -> tuple[np.ndarray, np.ndarray]:
+    """Mode and channel indices of every failed channel of every mode, in mode order."""
+    pairs = [(j, i) for j, m in enumerate(modes) for i in range(N_IMU) if m.bits >> i & 1]
+    return (
+        np.array([j for j, _ in pairs], dtype=np.intp),
+        np.array([i for _, i in pairs], dtype=np.intp),
+    )
+
+
+def fault_free_index(modes: Sequence[FaultMode]) -> int | None:
+    """Where the fault-free mode is among ``modes`` (None: not there)."""
+    return next((j for j, m in enumerate(modes) if m.bits == 0), None)
+
+
 #: ``h(t_s, x, u) -> (6, r)``: the healthy IMU output of ``x`` ``(nx, r)`` (one column per mode).
 ChannelPrediction = Callable[[float, np.ndarray, np.ndarray], np.ndarray]
 
@@ -255,21 +269,18 @@ class ObservabilityGate:
     @cached_property
     def _failed(self) -> list[tuple[int, int]]:
         """``(mode index, channel index)`` of every failed channel of every faulty mode."""
-        return [
-            (j, i) for j, mode in enumerate(self.modes) for i in range(N_IMU) if mode.bits >> i & 1
-        ]
+        return list(zip(*(a.tolist() for a in failed_channels(self.modes)), strict=True))
 
     @cached_property
     def _failed_arrays(self) -> tuple[np.ndarray, np.ndarray, list[float]]:
         """:attr:`_failed` as index arrays, and ``log(2 pi R_i)`` of each failed channel."""
-        modes = np.array([j for j, _ in self._failed], dtype=np.intp)
-        channels = np.array([i for _, i in self._failed], dtype=np.intp)
+        modes, channels = failed_channels(self.modes)
         log_2pi_r = [np.log(2.0 * np.pi * self.noise_var[i]) for _, i in self._failed]
         return modes, channels, log_2pi_r
 
     @cached_property
     def _healthy(self) -> int | None:
-        return next((j for j, m in enumerate(self.modes) if m.bits == 0), None)
+        return fault_free_index(self.modes)
 
     def __call__(
         self,
@@ -367,15 +378,11 @@ class DeadOrAnyEvidence:
 
     @cached_property
     def _failed(self) -> tuple[np.ndarray, np.ndarray]:
-        pairs = [(j, i) for j, m in enumerate(self.modes) for i in range(N_IMU) if m.bits >> i & 1]
-        return (
-            np.array([j for j, _ in pairs], dtype=np.intp),
-            np.array([i for _, i in pairs], dtype=np.intp),
-        )
+        return failed_channels(self.modes)
 
     @cached_property
     def _healthy(self) -> int | None:
-        return next((j for j, m in enumerate(self.modes) if m.bits == 0), None)
+        return fault_free_index(self.modes)
 
     def __call__(
         self,
