@@ -91,6 +91,24 @@ def test_shipped_campaigns_expand_to_the_papers_study() -> None:
         ({"filter_model": ["paper", "paper"]}, r"filter_model: expected paper or real-air"),
         ({"report": "tables"}, r"report: expected paper or matrix, got 'tables'"),
         ({"fault_modes": "stuck"}, r"fault_modes: expected untrusted or zero, got 'stuck'"),
+        ({"fault_kinds": [{"kind": "frozen"}]}, r"fault_kinds\[0\]\.kind: expected one of zero"),
+        ({"fault_kinds": [{"kind": "bias"}]}, r"fault_kinds\[0\]: expected accel: and gyro:"),
+        (
+            {"fault_kinds": [{"kind": "zero", "gyro": [0.1, 0.2]}]},
+            r"fault_kinds\[0\]\.gyro: value: kind zero takes none",
+        ),
+        (
+            {"fault_kinds": [{"kind": "bias", "accel": [1, 0.5], "gyro": [0.1, 0.2]}]},
+            r"fault_kinds\[0\]\.accel: expected a range \[lo, hi\] with lo < hi",
+        ),
+        (
+            {"fault_kinds": [{"kind": "noise", "accel": [0.5, 3], "gyro": [2, 3]}]},
+            r"fault_kinds\[0\]\.accel: value: expected the factor on the noise sigma",
+        ),
+        (
+            {"fault_kinds": [{"kind": "spikes", "accel": [1, 2], "gyro": [0.1, 0.2]}]},
+            r"fault_kinds\[0\]\.accel: rate_hz: expected spikes per second",
+        ),
     ],
 )
 def test_a_bad_campaign_gets_one_line_naming_the_field(changes: dict, message: str) -> None:
@@ -522,3 +540,27 @@ def test_the_false_declaration_bound_is_the_exact_poisson_one() -> None:
         bound = poisson_rate_upper_95(events, 2.0)
         assert poisson.cdf(events, bound * 2.0) == pytest.approx(0.05, abs=1e-9)
     assert math.isnan(poisson_rate_upper_95(0, 0.0))
+
+
+def test_fault_kinds_are_an_axis_with_sizes_drawn_in_their_ranges() -> None:
+    kinds = [
+        {"kind": "zero"},
+        {"kind": "bias", "accel": [0.5, 2.0], "gyro": [0.02, 0.1]},
+        {"kind": "scale", "accel": [0.3, 0.8], "gyro": [0.3, 0.8]},
+    ]
+    data = tiny(variants={"imm": "single"}, replicates=2, fault_kinds=kinds)
+    runs = parse_campaign(data, "c.yaml").runs()
+    # fault-free once per replicate, each of 6 channels once per kind and replicate
+    assert len(runs) == 2 * (1 + 6 * 3) and len({r.run_id for r in runs}) == len(runs)
+    bias = [r for r in runs if r.fault_kind == "bias"]
+    gyro = [abs(r.fault_value) for r in bias if r.mode.name in ("p", "q", "r")]
+    accel = [abs(r.fault_value) for r in bias if r.mode.name in ("x", "y", "z")]
+    assert all(0.02 <= v <= 0.1 for v in gyro) and all(0.5 <= v <= 2.0 for v in accel)
+    assert {r.scenario.faults[0].kind for r in bias} == {"bias"}
+    scale = [r.fault_value for r in runs if r.fault_kind == "scale"]
+    assert all(0.3 <= v <= 0.8 for v in scale)  # a gain: no sign
+    zero = [r for r in runs if r.fault_kind == "zero" and r.mode.bits]
+    assert all(r.scenario.faults[0].value == 0.0 for r in zero)
+    assert not any("/zero" in r.run_id for r in runs)  # zero runs keep their ids
+    again = parse_campaign(data, "c.yaml").runs()
+    assert [r.fault_value for r in again] == [r.fault_value for r in runs]  # seeded

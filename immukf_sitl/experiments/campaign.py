@@ -23,6 +23,11 @@ A wrong file gets one line naming the file, the field and what was expected
     filter_model: paper            # optional axis: paper (12 states) | real-air (30 states),
                                    # or a list of both (as --filter-model)
     fault_modes: zero              # optional: zero (the paper's) | untrusted, as --fault-modes
+    fault_kinds:                   # optional axis (default [{kind: zero}]): how the fault set's
+      - {kind: zero}               # channels fail (immukf_sitl/fault_kinds.py); a kind that takes
+      - {kind: bias, accel: [0.2, 2.0], gyro: [0.01, 0.1]}  # a value draws its size per run,
+      - {kind: spikes, accel: [1, 5], gyro: [0.1, 0.5], rate_hz: 2}  # uniformly in the range of
+                                   # the channel's sensor (bias, drift, spikes: either sign)
     report: paper                  # optional: paper (Tables 1-3 beside the paper's) | matrix
                                    # (the real-air matrix: identification within 1 s, false
                                    # declarations per hour, attitude IMM/UKF-2, per air)
@@ -51,6 +56,12 @@ is :meth:`Campaign.replicate_seed` ``(r)``, which depends on nothing but the cam
 fault time, variant, fault set and filter model (unless an air entry brings its own
 ``airframe:`` block). The sensor noise, IMU biases and turbulence of replicate ``r`` are the
 same across them too (common random numbers).
+
+**Fault kinds.** Each faulted fault set is flown once per ``fault_kinds`` entry (a fault-free
+run once). A kind's size is drawn per run, uniformly in the entry's ``accel`` or ``gyro`` range,
+from ``SeedSequence(seed, spawn_key=(FAULT_VALUE_STREAM, r, crc32(air name), fault set bits,
+crc32(kind)))``; bias, drift and spikes take a random sign. A fault set with both kinds of
+sensor gets one fault per sensor kind, at the same time (a kind without a size, one fault).
 
 **Random fault times.** With ``fault_times_s: {uniform: [lo, hi]}`` the fault time of a run is
 drawn uniformly in ``[lo, hi]`` (rounded to 10 ms, the IMU's period) from
@@ -82,6 +93,7 @@ from immukf_sitl.estimation.fault_modes import (
     all_fault_modes,
     single_fault_modes,
 )
+from immukf_sitl.fault_kinds import KIND_VALUES, check_fault_parameters
 from immukf_sitl.scenario import FaultSpec, Scenario, ScenarioError, parse_scenario
 from immukf_sitl.service.filter_models import FILTER_MODELS as MODEL_TYPES
 from immukf_sitl.service.filters import VARIANTS
@@ -95,6 +107,10 @@ FILTER_MODELS = tuple(MODEL_TYPES)
 REPORT_KINDS = ("paper", "matrix")
 #: first element of the spawn key of the fault-time draws (apart from the replicates' ``(r,)``)
 FAULT_TIME_STREAM = 0xFA17
+#: first element of the spawn key of the fault-size draws
+FAULT_VALUE_STREAM = 0xFA18
+#: kinds whose size takes a random sign
+SIGNED_KINDS = ("bias", "drift", "spikes")
 #: drawn fault times are rounded to this (s): the IMU's period
 FAULT_TIME_RESOLUTION_S = 0.01
 #: scenario fields a campaign sets itself
@@ -146,6 +162,37 @@ class UniformFaultTimes:
 
 
 @dataclass(frozen=True)
+class FaultKindSpec:
+    """A ``fault_kinds`` entry: a kind, the size ranges of its value per sensor, a spike rate."""
+
+    kind: str = "zero"
+    accel: tuple[float, float] | None = None
+    gyro: tuple[float, float] | None = None
+    rate_hz: float | None = None
+
+    def faults(
+        self, channels: tuple[str, ...], t_s: float, key: tuple[int, ...]
+    ) -> tuple[FaultSpec, ...]:
+        """The faults of a run on ``channels`` at ``t_s``; sizes drawn from ``key``'s stream."""
+        if self.accel is None and self.gyro is None:  # a kind without a size: one fault
+            return (FaultSpec(t_s, channels, self.kind, 0.0, None, self.rate_hz or 0.0),)
+        rng = np.random.default_rng(np.random.SeedSequence(key))
+        out = []
+        for sensor, names in (("accel", ("x", "y", "z")), ("gyro", ("p", "q", "r"))):
+            mine = tuple(c for c in channels if c in names)
+            if not mine:
+                continue
+            span = getattr(self, sensor)
+            value = 0.0
+            if span is not None:
+                value = float(rng.uniform(*span))
+                if self.kind in SIGNED_KINDS and rng.random() < 0.5:
+                    value = -value
+            out.append(FaultSpec(t_s, mine, self.kind, round(value, 6), None, self.rate_hz or 0.0))
+        return tuple(out)
+
+
+@dataclass(frozen=True)
 class RunSpec:
     """One run of a campaign: everything a worker needs, picklable.
 
@@ -171,6 +218,8 @@ class RunSpec:
         ``paper`` or ``real-air``: the estimator's filter model (as ``--filter-model``).
     fault_modes : str
         ``untrusted`` or ``zero``: what its fault modes predict (as ``--fault-modes``).
+    fault_kind : str
+        How the fault set's channels fail (:data:`immukf_sitl.fault_kinds.FAULT_KINDS`).
     """
 
     index: int
@@ -185,14 +234,21 @@ class RunSpec:
     failure: FailureCriterion
     filter_model: str = "paper"
     fault_modes: str = "zero"
+    fault_kind: str = "zero"
 
     @property
     def run_id(self) -> str:
-        """A stable key of the run (``--resume`` matches rows by it)."""
+        """A stable key of the run (``--resume`` matches rows by it; a zero fault adds nothing)."""
+        kind = "" if self.fault_kind == "zero" else f"/{self.fault_kind}"
         return (
             f"{self.variant}/{self.mode.name}/r{self.replicate}/t{self.fault_t_s:g}/"
-            f"{self.loop}/{self.air}/{self.filter_model}"
+            f"{self.loop}/{self.air}/{self.filter_model}{kind}"
         )
+
+    @property
+    def fault_value(self) -> float:
+        """The size of the run's first fault (0 for a fault-free run or a kind without one)."""
+        return self.scenario.faults[0].value if self.scenario.faults else 0.0
 
 
 @dataclass(frozen=True)
@@ -222,6 +278,7 @@ class Campaign:
     filter_models: tuple[str, ...] = ("paper",)
     report: str = "paper"
     fault_modes: str = "zero"
+    fault_kinds: tuple[FaultKindSpec, ...] = (FaultKindSpec(),)
 
     @property
     def digest(self) -> str:
@@ -239,6 +296,7 @@ class Campaign:
             "failure": self.failure.__dict__,
             "filter_models": self.filter_models,
             "fault_modes": self.fault_modes,
+            "fault_kinds": [dataclasses.astuple(k) for k in self.fault_kinds],
         }
         return json.dumps(data, sort_keys=True, default=str)
 
@@ -260,21 +318,32 @@ class Campaign:
         return len(self.fault_times_s)
 
     def scenario_for(
-        self, mode: FaultMode, replicate: int, fault_t_s: float, air: AirSpec
+        self,
+        mode: FaultMode,
+        replicate: int,
+        fault_t_s: float,
+        air: AirSpec,
+        kind: FaultKindSpec | None = None,
     ) -> Scenario:
-        """The scenario of one run (its seed, air and fault)."""
+        """The scenario of one run (its seed, air and fault of ``kind``, default zero)."""
         base = self._base_scenario(air)
         if fault_t_s >= base.duration_s:
             raise CampaignError(
                 f"{self.path}: fault_times_s: expected times before the scenario's end "
                 f"({base.duration_s:g} s), got {fault_t_s:g}"
             )
-        faults = ()
+        faults: tuple[FaultSpec, ...] = ()
+        kind = kind if kind is not None else FaultKindSpec()
         if mode.bits:
-            faults = (FaultSpec(t_s=fault_t_s, channels=mode.channels, kind="zero"),)
+            key = (
+                self.seed, FAULT_VALUE_STREAM, replicate, zlib.crc32(air.name.encode("utf-8")),
+                mode.bits, zlib.crc32(kind.kind.encode("utf-8")),
+            )  # fmt: skip
+            faults = kind.faults(mode.channels, fault_t_s, key)
+        suffix = "" if kind.kind == "zero" else f"-{kind.kind}"
         return dataclasses.replace(
             base,
-            name=f"{self.name}-{mode.name}-r{replicate}",
+            name=f"{self.name}-{mode.name}{suffix}-r{replicate}",
             seed=self.replicate_seed(replicate),
             faults=faults,
         )
@@ -299,16 +368,17 @@ class Campaign:
         """Every run, in the campaign's order."""
         out: list[RunSpec] = []
         cells = [
-            (model, air, loop, slot, variant, mode, replicate)
+            (model, air, loop, slot, variant, mode, kind, replicate)
             for model in self.filter_models
             for air in self.air
             for loop in self.loops
             for slot in range(self._time_slots())
             for variant, modes in self.variants
             for mode in modes
+            for kind in (self.fault_kinds if mode.bits else self.fault_kinds[:1])
             for replicate in range(self.replicates)
         ]
-        for model, air, loop, slot, variant, mode, replicate in cells:
+        for model, air, loop, slot, variant, mode, kind, replicate in cells:
             fault_t_s = self.fault_times_for(replicate, air, mode)[slot]
             out.append(
                 RunSpec(
@@ -320,10 +390,11 @@ class Campaign:
                     fault_t_s=fault_t_s,
                     loop=loop,
                     air=air.name,
-                    scenario=self.scenario_for(mode, replicate, fault_t_s, air),
+                    scenario=self.scenario_for(mode, replicate, fault_t_s, air, kind),
                     failure=self.failure,
                     filter_model=model,
                     fault_modes=self.fault_modes,
+                    fault_kind=kind.kind if mode.bits else "zero",
                 )
             )
         return tuple(out)
@@ -445,6 +516,46 @@ def _fault_times(r: YamlFields) -> tuple[float, ...] | UniformFaultTimes:
     return UniformFaultTimes(float(bounds[0]), float(bounds[1]))
 
 
+def _fault_kinds(r: YamlFields) -> tuple[FaultKindSpec, ...]:
+    raw = r.raw("fault_kinds", [{"kind": "zero"}])
+    if not isinstance(raw, list) or not raw:
+        r.fail("fault_kinds", "a non-empty list of {kind: ...} entries", raw)
+    out = []
+    for i, item in enumerate(raw):
+        f = _fields(r.path, f"fault_kinds[{i}]", item)
+        kind = f.string("kind")
+        if kind not in KIND_VALUES:
+            f.fail("kind", f"one of {', '.join(KIND_VALUES)}", kind)
+        spans = {s: _span(f, s) for s in ("accel", "gyro")}
+        rate = f.number("rate_hz") if f.has("rate_hz") else None
+        f.done()
+        for sensor, span in spans.items():  # both ends must be a valid value of the kind
+            for end in span if span is not None else (None,):
+                problem = check_fault_parameters(kind, end, rate)
+                if problem is not None and not (span is None and "needs one" in problem):
+                    raise r.error(f"{r.path}: fault_kinds[{i}].{sensor}: {problem}")
+        if KIND_VALUES.get(kind) is not None and None in spans.values():
+            r.fail(f"fault_kinds[{i}]", f"accel: and gyro: ranges for kind {kind}", item)
+        out.append(FaultKindSpec(kind, spans["accel"], spans["gyro"], rate))
+    if len({k.kind for k in out}) != len(out):
+        r.fail("fault_kinds", "distinct kinds", raw)
+    return tuple(out)
+
+
+def _span(f: YamlFields, key: str) -> tuple[float, float] | None:
+    if not f.has(key):
+        return None
+    value = f.raw(key)
+    if (
+        not isinstance(value, list)
+        or len(value) != 2
+        or not all(isinstance(v, int | float) and math.isfinite(v) for v in value)
+        or not value[0] < value[1]
+    ):
+        f.fail(key, "a range [lo, hi] with lo < hi", value)
+    return float(value[0]), float(value[1])
+
+
 def _filter_models(r: YamlFields) -> tuple[str, ...]:
     value = r.raw("filter_model", ["paper"])
     if isinstance(value, str):
@@ -548,6 +659,7 @@ def parse_campaign(data: Any, path: str = "<campaign>") -> Campaign:
         filter_models=_filter_models(r),
         report=r.string("report", "paper"),
         fault_modes=r.string("fault_modes", "zero"),
+        fault_kinds=_fault_kinds(r),
     )
     if campaign.fault_modes not in FAULT_SIGNATURES:
         r.fail("fault_modes", " or ".join(FAULT_SIGNATURES), campaign.fault_modes)

@@ -328,6 +328,27 @@ def _identification_lines(groups: list[tuple[str, dict]]) -> list[str]:
     return lines
 
 
+def _kind_lines(overall: dict) -> list[str]:
+    """Per fault kind (all airs): identified within 1 s, named right, size error (zero: none)."""
+    kinds = overall["identification"].get("by_kind", {})
+    if set(kinds) <= {"zero"}:
+        return []
+    lines = [
+        "\n**By fault kind** (all airs; the size error is the median relative error of the "
+        "named size where the kind was named right, for bias, drift and scale):\n",
+        "| kind | observable | identified within 1 s | named right | size error |",
+        "|---|---|---|---|---|",
+    ]
+    for kind, k in kinds.items():
+        n = k["observable"]
+        lines.append(
+            f"| {kind} | {n} | {k['identified_within_1s']} ({_pct(k['identified_within_1s'], n)})"
+            f" | {k['named_right']} ({_pct(k['named_right'], n)}) | "
+            f"{_n(k['size_error_median'], '.1%')} |"
+        )
+    return lines
+
+
 def _false_declaration_lines(groups: list[tuple[str, dict]]) -> list[str]:
     lines = [
         "\n**False declarations in fault-free flight** (IMM; from the end of the settling "
@@ -436,6 +457,7 @@ def matrix_markdown(summary: dict[str, object]) -> str:
         groups = list(data["airs"].items()) + [("**all**", data["overall"])]
         lines = [f"### Filter model `{model}`\n"]
         lines += _identification_lines(groups)
+        lines += _kind_lines(data["overall"])
         lines += _false_declaration_lines(groups)
         lines += _attitude_lines(data, groups)
         lines += _acceptance_lines(data)

@@ -79,6 +79,7 @@ def _identification(imm: Sequence[Row]) -> dict[str, object]:
         }
     share = len(within) / len(observable) if observable else math.nan
     return {
+        "by_kind": _by_kind(observable, within),
         "faulted_runs": len(faulted),
         "observable": len(observable),
         "ended_before_fault": len(before),
@@ -92,6 +93,30 @@ def _identification(imm: Sequence[Row]) -> dict[str, object]:
         "detection_delay_s_max": _number(max(delays) if delays else math.nan),
         "by_channel": channels,
     }
+
+
+#: kinds whose named size is compared with the injected one (relative error)
+SIZED_KINDS = ("bias", "drift", "scale")
+
+
+def _by_kind(observable: Sequence[Row], within: Sequence[Row]) -> dict[str, dict[str, object]]:
+    """Per fault kind: identified within the bound, named right, and the named size's error."""
+    out: dict[str, dict[str, object]] = {}
+    for kind in _ordered([r.get("fault_kind") or "zero" for r in observable]):
+        mine = [r for r in observable if (r.get("fault_kind") or "zero") == kind]
+        named = [r for r in mine if r.get("named_kind") == kind]
+        errors = [
+            abs(_float(r["named_size"]) - _float(r["fault_value"])) / abs(_float(r["fault_value"]))
+            for r in named
+            if kind in SIZED_KINDS and r.get("named_size") and _float(r["fault_value"]) != 0.0
+        ]
+        out[kind] = {
+            "observable": len(mine),
+            "identified_within_1s": sum(r in within for r in mine),
+            "named_right": len(named),
+            "size_error_median": _number(_median(errors)),
+        }
+    return out
 
 
 def poisson_rate_upper_95(events: int, hours: float) -> float:

@@ -262,6 +262,8 @@ def identification_metrics(
         "identified_ok": correct,
         "identified_within_1s": correct
         and (not spec.mode.bits or (delay is not None and delay <= 1.0)),
+        "named_kind": None if outcome is None else outcome.named_kind,
+        "named_size": None if outcome is None else outcome.named_size,
         "false_declarations": len(summary.false_alarms),
         "fault_free_s": max(0.0, stop - start),
         "false_declarations_fault_free": len(early),
