@@ -150,7 +150,7 @@ class EstimatorPipeline:
         self.estimator: Estimator | None = None
         self.estimate: VariantEstimate | None = None
         self.detector: FaultDetector | None = None
-        self._namer = FaultNamer(config.sensors.imu.sigmas)
+        self._namer = FaultNamer(self.config.sensors.imu.sigmas)
         self._controls: np.ndarray | None = None
         self._gps_queue: deque[GpsSample] = deque(maxlen=16)
         self._last_imu_s: float | None = None
