@@ -516,13 +516,17 @@ def _fault_times(r: YamlFields) -> tuple[float, ...] | UniformFaultTimes:
     return UniformFaultTimes(float(bounds[0]), float(bounds[1]))
 
 
-def _fault_kinds(r: YamlFields) -> tuple[FaultKindSpec, ...]:
-    raw = r.raw("fault_kinds", [{"kind": "zero"}])
+def _entries(r: YamlFields, key: str, default: list, expected: str) -> list[YamlFields]:
+    """The mappings of the list at ``key`` (``default`` if absent), each read as a field set."""
+    raw = r.raw(key, default)
     if not isinstance(raw, list) or not raw:
-        r.fail("fault_kinds", "a non-empty list of {kind: ...} entries", raw)
+        r.fail(key, f"a non-empty list of {expected} entries", raw)
+    return [_fields(r.path, f"{key}[{i}]", item) for i, item in enumerate(raw)]
+
+
+def _fault_kinds(r: YamlFields) -> tuple[FaultKindSpec, ...]:
     out = []
-    for i, item in enumerate(raw):
-        f = _fields(r.path, f"fault_kinds[{i}]", item)
+    for i, f in enumerate(_entries(r, "fault_kinds", [{"kind": "zero"}], "{kind: ...}")):
         kind = f.string("kind")
         if kind not in KIND_VALUES:
             f.fail("kind", f"one of {', '.join(KIND_VALUES)}", kind)
@@ -535,10 +539,10 @@ def _fault_kinds(r: YamlFields) -> tuple[FaultKindSpec, ...]:
                 if problem is not None and not (span is None and "needs one" in problem):
                     raise r.error(f"{r.path}: fault_kinds[{i}].{sensor}: {problem}")
         if KIND_VALUES.get(kind) is not None and None in spans.values():
-            r.fail(f"fault_kinds[{i}]", f"accel: and gyro: ranges for kind {kind}", item)
+            r.fail(f"fault_kinds[{i}]", f"accel: and gyro: ranges for kind {kind}", f.data)
         out.append(FaultKindSpec(kind, spans["accel"], spans["gyro"], rate))
     if len({k.kind for k in out}) != len(out):
-        r.fail("fault_kinds", "distinct kinds", raw)
+        r.fail("fault_kinds", "distinct kinds", [k.kind for k in out])
     return tuple(out)
 
 
@@ -585,14 +589,10 @@ def _loops(r: YamlFields) -> tuple[str, ...]:
 
 
 def _air(r: YamlFields) -> tuple[AirSpec, ...]:
-    value = r.raw("air", None)
-    if value is None:
+    if r.raw("air", None) is None:  # absent or null: the scenario's own air
         return (AirSpec("default"),)
-    if not isinstance(value, list) or not value:
-        r.fail("air", "a list of {name, airframe, wind} entries", value)
-    out = []
-    for i, item in enumerate(value):
-        entry = _fields(r.path, f"air[{i}]", item)
+    out: list[AirSpec] = []
+    for entry in _entries(r, "air", [], "{name, airframe, wind}"):
         name = entry.string("name")
         blocks = {k: entry.raw(k) for k in ("airframe", "wind") if k in entry.data}
         entry.done()
