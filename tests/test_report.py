@@ -4,7 +4,12 @@ import numpy as np
 import pytest
 
 from immukf_sitl.estimation.fault_modes import FaultMode
-from immukf_sitl.experiments.report import EstimateTrack, estimation_errors, summarize
+from immukf_sitl.experiments.report import (
+    EstimateTrack,
+    estimation_errors,
+    human_summary,
+    summarize,
+)
 from immukf_sitl.samples import TruthSample
 from immukf_sitl.scenario import ExpectSpec, FaultSpec
 from immukf_sitl.service.detection import DetectionEvent
@@ -91,3 +96,24 @@ def test_yaw_error_wraps_across_pi():
     truth = _truth(10)
     track = _track(truth, euler_offset=(0.0, 0.0, 2 * np.pi - np.radians(1.0)))
     assert estimation_errors(truth, track)["att_max_deg"] == pytest.approx(1.0, rel=1e-9)
+
+
+def test_a_naming_lands_on_its_detection_in_the_json_and_the_text():
+    """The naming that follows a detection of the same mode gives it its kind and size; a
+    later detection of another mode keeps none."""
+    truth = _truth(400, lambda t: 0.05)
+    q, r = FaultMode.from_name("q"), FaultMode.from_name("r")
+    events = [
+        DetectionEvent("detected", q, 1.2, 0.97),
+        DetectionEvent("named", q, 2.2, 0.99, "bias", 0.0492),
+        DetectionEvent("detected", r, 3.0, 0.95),
+    ]
+    fault = FaultSpec(1.0, ("q",), "bias", 0.05)
+    summary = summarize("t", [fault], truth, events, _track(truth), TimingStats(1.0, 1.0, 1.0))
+    s = summary.to_json()
+    assert [(d["mode"], d["kind"], d["size"]) for d in s["detections"]] == [
+        ("q", "bias", 0.0492),
+        ("r", None, None),
+    ]
+    assert s["faults"][0]["named_kind"] == "bias" and s["faults"][0]["named_size"] == 0.0492
+    assert "q@1.20s (bias +0.0492), r@3.00s;" in human_summary(summary)

@@ -319,6 +319,13 @@ def check_expectation(summary: Summary, expect: ExpectSpec) -> dict:
     }
 
 
+def _named(event: DetectionEvent) -> str:
+    """`` (bias +0.049)``: the failure a detection was named, if it was."""
+    if event.failure is None:
+        return ""
+    return f" ({event.failure}{'' if event.size is None else f' {event.size:+.3g}'})"
+
+
 def human_summary(summary: Summary) -> str:
     """A few lines for people."""
     lines = [f"scenario {summary.scenario}"]
@@ -332,7 +339,7 @@ def human_summary(summary: Summary) -> str:
         )
     if not summary.faults:
         lines.append("  no fault injected")
-    found = ", ".join(f"{d.mode.name}@{d.t_s:.2f}s" for d in summary.detections)
+    found = ", ".join(f"{d.mode.name}@{d.t_s:.2f}s{_named(d)}" for d in summary.detections)
     lines.append(f"  detections: {found or 'none'}; false alarms: {len(summary.false_alarms)}")
     err = summary.est_error
     if err["pos_max_m"] is not None:
