@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from immukf_sitl.estimation import single_fault_modes
-from immukf_sitl.service.detection import DetectorConfig, FaultDetector
+from immukf_sitl.service.detection import DetectorConfig, FaultDetector, SignatureWindow
 
 MODES = single_fault_modes()
 
@@ -64,7 +64,7 @@ def test_a_dead_declared_channel_is_not_replaced_by_another_mode():
     its place; once q has read beyond 5 sigma three times (alive), the switch goes ahead."""
     rng = np.random.default_rng(5)
     cfg = DetectorConfig(dwell_s=0.0, settle_s=0.0, signature_window=5)
-    det = FaultDetector(MODES, cfg, 0.0, signature="zero")
+    det = FaultDetector(MODES, cfg, 0.0)
     p_q, p_r = np.zeros(7), np.zeros(7)
     p_q[5], p_r[6] = 0.95, 0.97
     reading = _imu(rng, 0.0) * [1, 1, 1, 1, 0, 0]  # q and r both read zero plus nothing
@@ -105,7 +105,7 @@ def _imu(rng, q_radps):
 def test_a_fault_is_declared_only_while_its_channel_reads_zero_plus_noise():
     """The IMM's probability alone does not declare a q fault while the q gyro reads 0.05 rad/s."""
     rng = np.random.default_rng(11)
-    det = FaultDetector(MODES, DetectorConfig(dwell_s=0.1, settle_s=0.0), 0.0, signature="zero")
+    det = FaultDetector(MODES, DetectorConfig(dwell_s=0.1, settle_s=0.0), 0.0)
     events = []
     for k in range(100):  # q mode certain, but the gyro reads a turn: a model error, not a fault
         events += det.update(k * 0.01, _probs(0.99), _imu(rng, 0.05), SIGMAS)
@@ -123,19 +123,33 @@ def test_a_fault_is_declared_only_while_its_channel_reads_zero_plus_noise():
 def test_the_zero_test_rejects_a_dead_channel_at_its_stated_rate():
     """Chi-square over the window: a zeroed channel fails it 1 - signature_quantile of the time."""
     cfg = DetectorConfig(signature_window=20, signature_quantile=0.99)
-    det = FaultDetector(MODES, cfg, 0.0, signature="zero")
     rng = np.random.default_rng(5)
-    q_mode = MODES[5]
+    q = np.arange(6) == 4
     rejected = 0
     n = 4000
     for _ in range(n):
-        det._recent.clear()
+        window = SignatureWindow(cfg)
         for _ in range(cfg.signature_window):
-            det._recent.append(rng.normal(0.0, 1.0, 6))
-        rejected += not det.reads_zero(q_mode)
+            window.push(rng.normal(0.0, 1.0, 6), None)
+        rejected += not window.reads_zero(q)
     rate = rejected / n
     # binomial: 1 % of 4000 is 40 +- 6.3; four sigma either side
     assert 0.01 - 4 * 0.00157 < rate < 0.01 + 4 * 0.00157
+
+
+def test_the_inconsistency_test_passes_a_consistent_channel_at_its_stated_rate():
+    """Residuals that are chi-square(1) pass as inconsistent 1 - signature_quantile of the time."""
+    cfg = DetectorConfig(signature_window=20, signature_quantile=0.99)
+    rng = np.random.default_rng(6)
+    q = np.arange(6) == 4
+    flagged = 0
+    n = 4000
+    for _ in range(n):
+        window = SignatureWindow(cfg)
+        for _ in range(cfg.signature_window):
+            window.push(None, rng.normal(0.0, 1.0, (7, 6)) ** 2)
+        flagged += window.reads_inconsistent(5, q)
+    assert 0.01 - 4 * 0.00157 < flagged / n < 0.01 + 4 * 0.00157
 
 
 def test_signature_test_settings_are_checked():
@@ -143,78 +157,3 @@ def test_signature_test_settings_are_checked():
         DetectorConfig(signature_window=0)
     with pytest.raises(ValueError, match="signature test"):
         DetectorConfig(signature_quantile=1.0)
-
-
-# -- untrusted modes ---------------------------------------------------------------------------
-
-
-def _residuals(rng, q_sigmas: float) -> np.ndarray:
-    """Normalised squared residuals of the 7 modes: chi-square(1), q off by ``q_sigmas``."""
-    nu = rng.normal(0.0, 1.0, (7, 6))
-    nu[:, 4] += q_sigmas
-    return nu**2
-
-
-def test_an_untrusted_mode_is_declared_only_while_its_channel_disagrees_with_the_others():
-    """A q mode at 0.99 on readings that agree with the model (a model error elsewhere) and do
-    not read zero is not declared; once the q readings sit 3 sigma off what the other sensors
-    predict, it is, within a window."""
-    rng = np.random.default_rng(12)
-    det = FaultDetector(MODES, DetectorConfig(dwell_s=0.1, settle_s=0.0), 0.0, "untrusted")
-    events = []
-    for k in range(100):
-        imu = _imu(rng, 0.05)  # q reads a turn, not zero
-        events += det.update(k * 0.01, _probs(0.99), imu, SIGMAS, _residuals(rng, 0.0))
-    assert events == []
-    for k in range(100, 200):
-        imu = _imu(rng, 0.05)
-        events += det.update(k * 0.01, _probs(0.99), imu, SIGMAS, _residuals(rng, 3.0))
-    assert [(e.kind, e.mode.name) for e in events] == [("detected", "q")]
-    # 20 samples at 3 sigma: sum ~ 20 * (1 + 9) = 200 against the limit 45.3, reached well
-    # before the window is full
-    assert 1.0 <= events[0].t_s <= 1.19
-
-
-def test_the_untrusted_test_passes_a_consistent_channel_at_its_stated_rate():
-    """Residuals that are chi-square(1) pass as inconsistent 1 - signature_quantile of the time."""
-    cfg = DetectorConfig(signature_window=20, signature_quantile=0.99)
-    det = FaultDetector(MODES, cfg, 0.0, "untrusted")
-    rng = np.random.default_rng(6)
-    q = MODES.index(MODES[5])
-    flagged = 0
-    n = 4000
-    for _ in range(n):
-        det._residuals.clear()
-        for _ in range(cfg.signature_window):
-            det._residuals.append(_residuals(rng, 0.0))
-        flagged += det.reads_inconsistent(q)
-    assert 0.01 - 4 * 0.00157 < flagged / n < 0.01 + 4 * 0.00157
-
-
-def test_an_untrusted_declaration_clears_on_the_probabilities_and_never_blocks_another():
-    """No life latch: back below the clear threshold for the clear dwell, it clears; a mode that
-    leads with its own inconsistent channel replaces it at once."""
-    rng = np.random.default_rng(13)
-    cfg = DetectorConfig(dwell_s=0.0, settle_s=0.0, clear_dwell_s=0.5)
-    det = FaultDetector(MODES, cfg, 0.0, "untrusted")
-    off = _residuals(rng, 5.0)
-    events = det.update(0.0, _probs(0.99), residuals=off)
-    for k in range(1, 60):
-        events += det.update(k * 0.01, _probs(0.0), residuals=_residuals(rng, 0.0))
-    assert [(e.kind, e.mode.name, round(e.t_s, 2)) for e in events] == [
-        ("detected", "q", 0.0),
-        ("cleared", "q", 0.51),
-    ]
-    det = FaultDetector(MODES, cfg, 0.0, "untrusted")
-    det.update(0.0, _probs(0.99), residuals=off)
-    p_r = np.zeros(7)
-    p_r[6] = 0.97
-    r_off = _residuals(rng, 0.0)
-    r_off[:, 5] += 30.0
-    events = det.update(0.01, p_r, residuals=r_off)
-    assert [(e.kind, e.mode.name) for e in events] == [("cleared", "q"), ("detected", "r")]
-
-
-def test_an_unknown_signature_is_rejected():
-    with pytest.raises(ValueError, match="signature: expected one of untrusted, zero"):
-        FaultDetector(MODES, DetectorConfig(), 0.0, signature="stuck")

@@ -54,7 +54,7 @@ def test_the_namer_names_a_declaration_once_its_window_is_in():
     namer = FaultNamer(np.array([0.0245] * 3 + [SIGMA] * 3), window_s=0.5)
     nu = np.zeros((7, 6))
     var = np.full((7, 6), S2[0])
-    assert namer.observe(t[0], np.zeros(6), nu, var) is None  # nothing declared
+    assert namer.observe(t[0], np.zeros(6), nu, var) == []  # nothing declared
     namer.declared(5, 4, t[0])
     names = []
     for k in range(N):
@@ -62,10 +62,11 @@ def test_the_namer_names_a_declaration_once_its_window_is_in():
         imu[4] = healthy[k] + 0.0524
         nu[5, 4] = imu[4] - h[k]
         names.append(namer.observe(t[k], imu, nu, var))
-    got = [(k, n) for k, n in enumerate(names) if n is not None]
+    got = [(k, n) for k, named in enumerate(names) for n in named]
     assert len(got) == 1 and got[0][0] == 50  # 0.5 s after the declaration
-    assert got[0][1].kind == "bias"
-    assert got[0][1].size == pytest.approx(0.0524, rel=0.2)
+    channel, name = got[0][1]
+    assert channel == 4 and name.kind == "bias"
+    assert name.size == pytest.approx(0.0524, rel=0.2)
 
 
 def test_too_few_samples_is_an_error():

@@ -205,7 +205,7 @@ def test_gate_leaves_an_observable_channel_alone() -> None:
 
 def _declared_q(cfg: DetectorConfig) -> tuple[FaultDetector, list]:
     modes = single_fault_modes()
-    det = FaultDetector(modes, cfg, 0.0, signature="zero")
+    det = FaultDetector(modes, cfg, 0.0)
     q = modes.index(FaultMode.from_name("q"))
     probs = np.zeros(len(modes))
     probs[q] = 1.0

@@ -121,6 +121,33 @@ def single_fault_modes() -> tuple[FaultMode, ...]:
     return _ALL_MODES[: N_IMU + 1]
 
 
+def bank_modes(declared: FaultMode | None = None) -> tuple[FaultMode, ...]:
+    """The 7 modes of a bank based on the declared set ``D``: ``D``, then ``D`` xor each channel.
+
+    Slot 0 believes what was declared; slot ``1 + i`` believes channel ``IMU_CHANNELS[i]``
+    changed state: a further failure when it is not in ``D``, a recovery when it is. With
+    nothing declared this is :func:`single_fault_modes`, the paper's bank.
+    """
+    base = 0 if declared is None else declared.bits
+    return (FaultMode(base),) + tuple(FaultMode(base ^ (1 << i)) for i in range(N_IMU))
+
+
+def failure_marginals(modes: Sequence[FaultMode], probabilities: np.ndarray) -> np.ndarray:
+    """``(7,)``: P(no channel failed), then P(channel failed) for x, y, z, p, q, r.
+
+    Sums of the mode probabilities over the modes that hold each: a figure whose meaning does
+    not change when the bank re-bases on a declaration (for the paper's bank it is the mode
+    probabilities themselves).
+    """
+    probabilities = np.asarray(probabilities, dtype=float)
+    bits = np.array([m.bits for m in modes])
+    out = np.empty(N_IMU + 1)
+    out[0] = probabilities[bits == 0].sum()
+    for i in range(N_IMU):
+        out[1 + i] = probabilities[(bits >> i & 1) == 1].sum()
+    return out
+
+
 def _generate_all() -> tuple[FaultMode, ...]:
     modes = []
     for count in range(N_IMU + 1):
@@ -136,16 +163,113 @@ _ALL_MODES = _generate_all()
 FAULT_SIGNATURES: tuple[str, ...] = ("untrusted", "zero")
 
 
+#: variance of an offset spread evenly over the full scale, in full scales squared (``1 / 3``)
+OFFSET_PRIOR_VAR = 1.0 / 3.0
+#: prior weights of how a newly failed channel failed: dead, stuck, offset (no preference)
+FAILURE_PRIOR = np.full(3, 1.0 / 3.0)
+#: a weight of how a channel failed never falls below this (so that it can still change)
+FAILURE_WEIGHT_FLOOR = 1e-6
+#: a stuck reading repeats to within this many noise sigmas (a held register: exactly)
+STUCK_SIGMAS = 0.1
+
+
+@dataclass(frozen=True)
+class ChannelOffset:
+    """Each failed channel of a mode reads its healthy value plus an offset, a state of its own.
+
+    Slot ``j`` of the bank predicts a channel ``i`` it believes failed as
+    ``z_i = h_i(x) + range_i e_i`` with ``e_i`` the state at ``index + i``, in full scales:
+    before anything is learnt it is spread evenly over the sensor's range (variance
+    :data:`OFFSET_PRIOR_VAR`, the "reads anything" of the untrusted modes), and then it is learnt
+    like any state and walks by ``walk_var`` a step. So a channel that jumped to a bias costs
+    its mode the price of learning the offset once, where a width that stayed that of the
+    whole range (paid again every step) lost to a fault-free filter that had absorbed the jump
+    into its gust states; and a declared channel is still explained by its mode as it reads, so
+    that the mode that trusts it again does not win on the width alone. Slots that trust
+    channel ``i`` hold ``e_i`` at its prior, so that mixing (eqs. 6-8) seeds a slot from them
+    with an offset still to learn.
+
+    Parameters
+    ----------
+    modes : sequence of FaultMode
+        The bank's modes.
+    ranges : ndarray, shape (6,)
+        Full scales of the six channels (m/s^2, rad/s).
+    index : int
+        Where ``e_x`` is in the state (``e_y`` ... ``e_r`` follow).
+    walk_var : float
+        Variance an offset gains per step (full scales squared).
+    """
+
+    modes: tuple[FaultMode, ...]
+    ranges: np.ndarray
+    index: int
+    walk_var: float
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "modes", tuple(self.modes))
+        object.__setattr__(self, "ranges", np.asarray(self.ranges, dtype=float))
+
+    @cached_property
+    def failed(self) -> np.ndarray:
+        """``(6, r)``: whether each slot believes each channel failed."""
+        return np.array([[m.bits >> i & 1 == 1 for m in self.modes] for i in range(N_IMU)])
+
+    @cached_property
+    def gain(self) -> np.ndarray:
+        """``(6, r)``: how much of its offset each channel reads in each slot (its full scale)."""
+        return np.where(self.failed, self.ranges[:, None], 0.0)
+
+    @cached_property
+    def states(self) -> slice:
+        """The six offsets' rows of the state."""
+        return slice(self.index, self.index + N_IMU)
+
+    def output(self, x: np.ndarray) -> np.ndarray:
+        """``(6, r, ...)``: what the offsets add to the IMU channels of ``x (nx, r, ...)``."""
+        e = x[self.states]
+        return self.gain.reshape(self.gain.shape + (1,) * (e.ndim - 2)) * e
+
+    def reset(self, means: np.ndarray, covs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Copies of ``means (r, nx)``, ``covs (r, nx, nx)``: trusted channels' offsets at prior."""
+        means, covs = means.copy(), covs.copy()
+        for j in range(len(self.modes)):
+            rows = self.index + np.flatnonzero(~self.failed[:, j])
+            means[j, rows] = 0.0
+            covs[j, rows, :] = 0.0
+            covs[j, :, rows] = 0.0
+            covs[j, rows, rows] = OFFSET_PRIOR_VAR
+        return means, covs
+
+    def residuals(
+        self, means: np.ndarray, covs: np.ndarray, nu: np.ndarray, var: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """``nu``, ``var (r, 6)`` with each failed channel's entry its learnt offset.
+
+        The residual of a slot's prediction of a channel it believes failed *without* the
+        offset, ``z - h = range e``, and its variance: how far the channel reads from what the
+        other sensors say, which the detector's tests and the naming read.
+        """
+        nu, var = nu.copy(), var.copy()
+        i, j = np.nonzero(self.failed)
+        rows = self.index + i
+        nu[j, i] = self.ranges[i] * means[j, rows]
+        var[j, i] = self.ranges[i] ** 2 * covs[j, rows, rows]
+        return nu, var
+
+
 def fault_mode_output(
     healthy_output: MeasurementFn,
     modes: Sequence[FaultMode],
     signature: str = "untrusted",
     n_extra: int = 0,
+    offset: ChannelOffset | None = None,
 ) -> MeasurementFn:
     """Mode-batched output function ``g_j(x, u, w)`` (eq. 2 per mode).
 
     ``zero``: ``m_j * h(x, u) + w`` with ``m_j`` the mode's healthy mask; ``untrusted``:
-    ``h(x, u) + w``, the failed channels' width being :func:`fault_mode_noise_var`'s.
+    ``h(x, u) + w``, plus each failed channel's ``offset`` when given (else the failed channels
+    have :func:`fault_mode_noise_var`'s width).
 
     Parameters
     ----------
@@ -158,6 +282,8 @@ def fault_mode_output(
         One of :data:`FAULT_SIGNATURES`.
     n_extra : int
         Number of non-IMU output channels after the six IMU ones.
+    offset : ChannelOffset, optional
+        The untrusted modes' offsets on their failed channels; None: none.
 
     Returns
     -------
@@ -169,6 +295,8 @@ def fault_mode_output(
 
         def untrusted(t_s: float, x: np.ndarray, u: np.ndarray, w: np.ndarray | None) -> np.ndarray:
             z = healthy_output(t_s, x, u, None)
+            if offset is not None:
+                z[:N_IMU] += offset.output(x)
             return z if w is None else z + w
 
         return untrusted
@@ -189,7 +317,9 @@ def fault_mode_noise_var(
     """``(len(modes), 6 + n_extra)``: the variance each mode adds to each output channel.
 
     ``untrusted``: ``range^2 / 3`` on every failed channel (``ranges`` are the six channels'
-    full scales), 0 elsewhere; ``zero``: None (nothing added).
+    full scales), 0 elsewhere; ``zero``: None (nothing added). A bank that reads its failed
+    channels through a :class:`ChannelOffset` sets its widths step by step instead
+    (:meth:`DeadOrAnyEvidence.widths`).
     """
     _check_signature(signature)
     if signature == "zero":
@@ -223,6 +353,27 @@ def fault_free_index(modes: Sequence[FaultMode]) -> int | None:
     return next((j for j, m in enumerate(modes) if m.bits == 0), None)
 
 
+def reference_slots(modes: Sequence[FaultMode]) -> np.ndarray | None:
+    """For every failed channel of :func:`failed_channels`, the slot that trusts that channel.
+
+    A mode that distrusts channel ``i`` scores it against the mode that differs from it by
+    trusting ``i`` alone (mode ``j`` minus ``i``); when the bank has no such mode (a bank
+    re-based on a declared set holds ``D + c`` but not ``D + c - i``), the nearest mode that
+    trusts ``i`` (fewest channels changed). In the paper's bank every reference is the fault-free
+    mode. None when some failed channel is trusted by no mode.
+    """
+    bits = np.array([m.bits for m in modes])
+    out = []
+    for j, i in zip(*failed_channels(modes), strict=True):
+        target = int(bits[j]) & ~(1 << int(i))
+        trusting = np.flatnonzero((bits >> int(i) & 1) == 0)
+        if trusting.size == 0:
+            return None
+        distance = [bin(int(bits[k]) ^ target).count("1") for k in trusting]
+        out.append(int(trusting[int(np.argmin(distance))]))
+    return np.array(out, dtype=np.intp)
+
+
 #: ``h(t_s, x, u) -> (6, r)``: the healthy IMU output of ``x`` ``(nx, r)`` (one column per mode).
 ChannelPrediction = Callable[[float, np.ndarray, np.ndarray], np.ndarray]
 
@@ -237,24 +388,26 @@ class ObservabilityGate:
     step would hand the fault mode about ``log(S_f / R_f) / 2`` nats: evidence of nothing but the
     healthy model's own uncertainty. So while mode ``j``'s *own* prediction of its failed
     channel (which that channel never corrected) is within ``n_sigma`` standard deviations of
-    zero, mode ``j`` is scored on that channel with the fault-free mode's marginal likelihood:
-    the channel says nothing for or against the fault. Once the model says the channel should
-    read a value away from zero, the reading decides: zero-plus-noise (failed) or that value
-    (healthy), which is what the mode probabilities then mean. The test uses the fault mode's
-    own prediction, not the fault-free mode's: once a channel is dead, the fault-free filter
-    fuses its zeros and predicts near zero itself, which would keep the gate shut.
+    zero, mode ``j`` is scored on that channel with its reference mode's marginal likelihood
+    (the mode that trusts the channel, :func:`reference_slots`; the fault-free one in the
+    paper's bank): the channel says nothing for or against the fault. Once the model says the
+    channel should read a value away from zero, the reading decides: zero-plus-noise (failed) or
+    that value (healthy), which is what the mode probabilities then mean. The test uses the
+    fault mode's own prediction, not the fault-free mode's: once a channel is dead, the
+    fault-free filter fuses its zeros and predicts near zero itself, which would keep the gate
+    shut.
 
     Parameters
     ----------
     modes : sequence of FaultMode
-        The bank's modes, in batch order; needs the fault-free mode among them (otherwise the
-        gate does nothing).
+        The bank's modes, in batch order; every failed channel needs a mode that trusts it
+        (otherwise the gate does nothing).
     channel_prediction : callable
         ``h(t_s, x, u)``: the six healthy IMU channels of states ``x`` ``(nx, r)``.
     noise_var : ndarray, shape (6,)
         ``R`` of the six IMU channels.
     n_sigma : float
-        Observability threshold, in standard deviations of the fault-free mode's innovation.
+        Observability threshold, in standard deviations of the reference mode's innovation.
     """
 
     modes: tuple[FaultMode, ...]
@@ -279,8 +432,8 @@ class ObservabilityGate:
         return modes, channels, log_2pi_r
 
     @cached_property
-    def _healthy(self) -> int | None:
-        return fault_free_index(self.modes)
+    def _reference(self) -> np.ndarray | None:
+        return reference_slots(self.modes)
 
     def __call__(
         self,
@@ -307,13 +460,13 @@ class ObservabilityGate:
         log_likelihood : ndarray, shape (r,)
             ``log Lambda_j`` (eq. 25) as the filters computed them.
         """
-        healthy = self._healthy
-        if healthy is None or not self._failed:
+        reference = self._reference
+        if reference is None or not self._failed:
             return log_likelihood
         own = self.channel_prediction(t_s, np.ascontiguousarray(predicted_mean.T), u)
         out = np.array(log_likelihood, dtype=float)
         modes, channels, log_2pi_r = self._failed_arrays
-        s_all = innovation_cov[healthy, channels, channels]
+        s_all = innovation_cov[reference, channels, channels]
         # observable: the reading decides (written so that a NaN prediction is not)
         observable = np.abs(own[channels, modes]) > self.n_sigma * np.sqrt(s_all)
         for f in np.flatnonzero(~observable).tolist():
@@ -321,10 +474,34 @@ class ObservabilityGate:
             s_healthy = float(s_all[f])
             r = self.noise_var[i]
             zero_fit = -0.5 * (z[i] * z[i] / r + log_2pi_r[f])
-            nu = innovation[healthy, i]
+            nu = innovation[reference[f], i]
             healthy_fit = -0.5 * (nu * nu / s_healthy + np.log(2.0 * np.pi * s_healthy))
             out[j] += healthy_fit - zero_fit
         return out
+
+    def prior_weights(self, r: int) -> None:
+        """A zero mode's channel fails one way: no weights to carry."""
+        return None
+
+    def widths(self, weights: np.ndarray | None) -> None:
+        """No widths: a zero mode's channel gives its state no feedback by its output."""
+        return None
+
+    def score(
+        self,
+        t_s: float,
+        predicted_mean: np.ndarray,
+        innovation: np.ndarray,
+        innovation_cov: np.ndarray,
+        z: np.ndarray,
+        u: np.ndarray,
+        log_likelihood: np.ndarray,
+        weights: np.ndarray | None = None,
+        previous_z: np.ndarray | None = None,
+        widths: np.ndarray | None = None,
+    ) -> tuple[np.ndarray, None]:
+        """:meth:`__call__` in the protocol the IMM calls (no weights)."""
+        return self(t_s, predicted_mean, innovation, innovation_cov, z, u, log_likelihood), None
 
 
 @dataclass(frozen=True)
@@ -341,10 +518,11 @@ class DeadOrAnyEvidence:
 
     with ``S_ji`` the UKF's variance of the channel's innovation, ``V`` included (the
     "anything" part), and ``w`` = :attr:`dead_weight`. Where mode ``j``'s own prediction of the
-    channel is within ``n_sigma`` standard deviations of the fault-free mode's innovation of
-    zero (the test of :class:`ObservabilityGate`), a dead sensor cannot be told from a healthy
-    one; there the zero part is scored as the fault-free mode scores the channel (its marginal
-    likelihood, weight 1: the zero hypothesis says nothing for or against the mode), as
+    channel is within ``n_sigma`` standard deviations of its reference mode's innovation of zero
+    (the mode that trusts the channel, :func:`reference_slots`; the test of
+    :class:`ObservabilityGate`), a dead sensor cannot be told from a healthy one; there the zero
+    part is scored as the reference mode scores the channel (its marginal likelihood, weight 1:
+    the zero hypothesis says nothing for or against the mode), as
     :class:`ObservabilityGate` does for the zero modes. The UKF's likelihood (eq. 25) holds the
     channel's term ``N(nu_ji; 0, S_ji)`` as a factor to within ``S / V`` (the wide channel is
     nearly uncorrelated with the others), so that factor is swapped for the mixture.
@@ -352,7 +530,7 @@ class DeadOrAnyEvidence:
     Parameters
     ----------
     modes : sequence of FaultMode
-        The bank's modes, in batch order (the fault-free mode among them).
+        The bank's modes, in batch order (each failed channel trusted by some mode).
     noise_var : ndarray, shape (6,)
         ``R`` of the six IMU channels.
     width_var : ndarray, shape (len(modes), 6)
@@ -360,7 +538,10 @@ class DeadOrAnyEvidence:
     dead_weight : float
         Prior weight of "reads zero" among the ways the channel fails.
     n_sigma : float
-        Observability threshold of the zero part, in sigmas of the fault-free mode's innovation.
+        Observability threshold of the zero part, in sigmas of the reference mode's innovation.
+    offset : ChannelOffset, optional
+        The modes' offsets on their newly failed channels: the zero part tests the mode's
+        prediction of the channel without its offset (what the channel should read).
     """
 
     modes: tuple[FaultMode, ...]
@@ -368,6 +549,7 @@ class DeadOrAnyEvidence:
     width_var: np.ndarray
     dead_weight: float = 0.5
     n_sigma: float = 3.0
+    offset: ChannelOffset | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "modes", tuple(self.modes))
@@ -381,8 +563,8 @@ class DeadOrAnyEvidence:
         return failed_channels(self.modes)
 
     @cached_property
-    def _healthy(self) -> int | None:
-        return fault_free_index(self.modes)
+    def _reference(self) -> np.ndarray | None:
+        return reference_slots(self.modes)
 
     def __call__(
         self,
@@ -396,28 +578,139 @@ class DeadOrAnyEvidence:
     ) -> np.ndarray:
         """The modes' log-likelihoods with each failed channel scored by the mixture.
 
-        Same arguments as :class:`ObservabilityGate`; ``predicted_mean`` and ``u`` are unused
-        (the mode's prediction of the channel is ``z - nu``).
+        Same arguments as :class:`ObservabilityGate`; ``u`` is unused (the mode's prediction of
+        the channel is ``z - nu``, less its offset in ``predicted_mean``).
+        """
+        terms = self._terms(predicted_mean, innovation, innovation_cov, z)
+        if terms is None:
+            return log_likelihood
+        modes, log_any, (log_dead, log_w_dead), _, _, _ = terms
+        w = self.dead_weight
+        mixture = np.logaddexp(log_w_dead + log_dead, np.log1p(-w) + log_any)
+        out = np.array(log_likelihood, dtype=float)
+        np.add.at(out, modes, mixture - log_any)
+        return out
+
+    def _terms(
+        self,
+        predicted_mean: np.ndarray,
+        innovation: np.ndarray,
+        innovation_cov: np.ndarray,
+        z: np.ndarray,
+        previous_z: np.ndarray | None = None,
+    ) -> tuple | None:
+        """Per failed ``(mode, channel)`` pair: the densities the scorings mix.
+
+        ``(modes, log_any, (log_dead, log_w_dead), log_stuck, channels, (dead_seen,
+        stuck_seen))``: the UKF's factor of the channel (its offset or width included), the
+        dead part (``N(z; 0, R)`` where observable, else the reference mode's factor with weight
+        1: ``log_w_dead`` is ``ln dead_weight`` or 0), the stuck part (the reading equal to the
+        previous one, where the reference predicts it should have moved; else the reference's
+        factor) and where each part was observable.
         """
         modes, channels = self._failed
-        healthy = self._healthy
-        if healthy is None or modes.size == 0:
-            return log_likelihood
+        reference = self._reference
+        if reference is None or modes.size == 0:
+            return None
         nu = innovation[modes, channels]
         s_wide = innovation_cov[modes, channels, channels]
         reading = z[channels]
         own = reading - nu  # the mode's prediction of its failed channel
+        if self.offset is not None:  # ... without the offset it learnt
+            rows = self.offset.index + channels
+            own = own - self.offset.gain[channels, modes] * predicted_mean[modes, rows]
         r = self.noise_var[channels]
-        log_any = -0.5 * (nu * nu / s_wide + np.log(2.0 * np.pi * s_wide))
-        log_zero = -0.5 * (reading * reading / r + np.log(2.0 * np.pi * r))
-        nu0 = innovation[healthy, channels]
-        s0 = innovation_cov[healthy, channels, channels]
-        log_healthy = -0.5 * (nu0 * nu0 / s0 + np.log(2.0 * np.pi * s0))
+        log_any = _log_normal(nu, s_wide)
+        nu0 = innovation[reference, channels]
+        s0 = innovation_cov[reference, channels, channels]
+        log_reference = _log_normal(nu0, s0)
+        gate = self.n_sigma * np.sqrt(s0)
         # observable: a dead sensor differs from this prediction (a NaN prediction is not)
-        observable = np.abs(own) > self.n_sigma * np.sqrt(s0)
-        w = self.dead_weight
-        dead = np.where(observable, np.log(w) + log_zero, log_healthy)
-        mixture = np.logaddexp(dead, np.log1p(-w) + log_any)
+        observable = np.abs(own) > gate
+        log_dead = np.where(observable, _log_normal(reading, r), log_reference)
+        log_w_dead = np.where(observable, np.log(self.dead_weight), 0.0)
+        held = np.full_like(reading, np.nan) if previous_z is None else previous_z[channels]
+        moved = np.isfinite(held) & (np.abs(own - held) > gate)
+        step = np.where(moved, reading - held, 0.0)
+        log_stuck = np.where(moved, _log_normal(step, (STUCK_SIGMAS**2) * r), log_reference)
+        return modes, log_any, (log_dead, log_w_dead), log_stuck, channels, (observable, moved)
+
+    def prior_weights(self, r: int) -> np.ndarray | None:
+        """``(r, 6, 3)``: every mode's prior weights of dead, stuck and offset per channel.
+
+        None without offsets (the weights are those of a channel read through its offset).
+        """
+        return None if self.offset is None else np.tile(FAILURE_PRIOR, (r, N_IMU, 1))
+
+    def widths(self, weights: np.ndarray | None) -> np.ndarray | None:
+        """``(r, 6)``: the variance each mode gives each failed channel in its update.
+
+        ``(w_dead + w_stuck) V``, ``V = range^2 / 3``: a channel its mode believes dead or stuck
+        says nothing of the state (as the untrusted width did), one it believes offset is read
+        through its offset. The update is linear in the channel, so it cannot follow the
+        mixture itself; this is its moment-matched reading's weight.
+        """
+        if weights is None or self.offset is None:
+            return None
+        wide = self.offset.ranges**2 / 3.0
+        return (weights[:, :, 0] + weights[:, :, 1]) * wide[None, :] * self.offset.failed.T
+
+    def score(
+        self,
+        t_s: float,
+        predicted_mean: np.ndarray,
+        innovation: np.ndarray,
+        innovation_cov: np.ndarray,
+        z: np.ndarray,
+        u: np.ndarray,
+        log_likelihood: np.ndarray,
+        weights: np.ndarray | None = None,
+        previous_z: np.ndarray | None = None,
+        widths: np.ndarray | None = None,
+    ) -> tuple[np.ndarray, np.ndarray | None]:
+        """The modes' log-likelihoods, and each mode's weights of how each channel failed.
+
+        A failed channel read through its offset (:class:`ChannelOffset`) failed one way, for
+        good: dead, stuck or offset, with the mode's ``weights`` ``(r, 6, 3)`` (mixed from the
+        other modes as the states are, eqs. 6-8). Its factor is the predictive mixture
+        ``sum_s w_s p_s(z)``, after which the weights are the posterior ``w_s p_s(z) / sum``
+        (floored at :data:`FAILURE_WEIGHT_FLOOR`): once the readings have shown which way the
+        channel failed, the others cost nothing, where a mixture drawn anew each step would
+        charge ``ln(1 / (1 - w))`` a step for the ways it did not fail. ``widths`` ``(r, 6)``
+        are what :meth:`widths` gave this step's update (the offset part's density leaves them
+        out).
+        """
+        if weights is None or self.offset is None:
+            return self(t_s, predicted_mean, innovation, innovation_cov, z, u, log_likelihood), None
+        terms = self._terms(predicted_mean, innovation, innovation_cov, z, previous_z)
+        if terms is None:
+            return log_likelihood, weights
+        modes, log_factor, (log_dead, _), log_stuck, channels, seen = terms
+        if widths is None:
+            log_offset = log_factor
+        else:
+            nu = innovation[modes, channels]
+            s_offset = innovation_cov[modes, channels, channels] - widths[modes, channels]
+            log_offset = _log_normal(nu, np.maximum(s_offset, np.finfo(float).tiny))
+        log_w = np.log(np.maximum(weights[modes, channels], FAILURE_WEIGHT_FLOOR))
+        # the mode's factor: a part that cannot be seen scores as the reference (neutral) ...
+        parts = np.stack([log_dead, log_stuck, log_offset], axis=1)  # (k, 3)
+        predictive = np.logaddexp.reduce(log_w + parts, axis=1)
         out = np.array(log_likelihood, dtype=float)
-        np.add.at(out, modes, mixture - log_any)
-        return out
+        np.add.at(out, modes, predictive - log_factor)
+        # ... and says nothing of which way the channel failed: it moves no weight
+        told = np.stack(
+            [np.where(seen[0], log_dead, log_offset), np.where(seen[1], log_stuck, log_offset),
+             log_offset], axis=1,
+        )  # fmt: skip
+        joint = log_w + told
+        posterior = np.exp(joint - np.logaddexp.reduce(joint, axis=1)[:, None])
+        posterior = np.maximum(posterior, FAILURE_WEIGHT_FLOOR)
+        updated = np.array(weights, dtype=float)
+        updated[modes, channels] = posterior / posterior.sum(axis=1, keepdims=True)
+        return out, updated
+
+
+def _log_normal(x: np.ndarray, var: np.ndarray) -> np.ndarray:
+    """``log N(x; 0, var)`` elementwise."""
+    return -0.5 * (x * x / var + np.log(2.0 * np.pi * var))

@@ -61,6 +61,9 @@ class ImmEstimate:
         Whether a measurement was used.
     innovation_var : ndarray or None, shape (r, nz)
         Variances of the innovations (the diagonals of ``P_zz``), None on a predict-only step.
+    failure_weights : ndarray or None, shape (r, 6, 3)
+        Each mode's weights of how each channel failed (dead, stuck, offset), when the
+        ``evidence`` carries them (:meth:`DeadOrAnyEvidence.score`); None otherwise.
     """
 
     t_s: float
@@ -75,6 +78,7 @@ class ImmEstimate:
     nis: np.ndarray
     updated: bool
     innovation_var: np.ndarray | None = None
+    failure_weights: np.ndarray | None = None
 
     @property
     def most_likely_mode(self) -> int:
@@ -153,6 +157,7 @@ class ImmEstimator:
         cov = np.asarray(cov, dtype=float)
         with np.errstate(divide="ignore"):
             log_probs = np.log(probs)
+        weights = None if self.evidence is None else self.evidence.prior_weights(r)
         return ImmEstimate(
             float(t_s),
             mean.copy(),
@@ -165,7 +170,21 @@ class ImmEstimator:
             None,
             np.zeros(r),
             False,
+            None,
+            weights,
         )
+
+    def _mix_weights(self, previous: ImmEstimate, log_c: np.ndarray) -> np.ndarray | None:
+        """The failure weights each mode starts the step from, mixed as its state is (eq. 6)."""
+        if previous.failure_weights is None:
+            return None
+        with np.errstate(divide="ignore"):
+            log_mix = (
+                self.log_transition + previous.log_mode_probabilities[:, None] - log_c[None, :]
+            )  # log mu_{i|j}
+        mix = np.exp(log_mix)
+        weights = previous.failure_weights
+        return (mix.T @ weights.reshape(len(weights), -1)).reshape(weights.shape)
 
     def _mix(self, previous: ImmEstimate) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``log c_j``, the mixed means and covariances of every mode (eqs. 6-8)."""
@@ -194,26 +213,38 @@ class ImmEstimator:
         u: np.ndarray,
         measurement: Measurement | None,
         process: ProcessModel | None = None,
+        previous_z: np.ndarray | None = None,
     ) -> ImmEstimate:
         """One IMM cycle from ``previous`` (time ``k``) to ``t_next_s`` (``k+1``), control ``u``.
 
         The arguments are those of :meth:`UnscentedKalmanFilter.step`, with ``previous`` the
         bank's estimate at ``k`` (from :meth:`initial_estimate` or the previous step): mixing
         (eqs. 6-8), the mode-matched filters (eqs. 9-25), the mode probabilities (eq. 26) and
-        the combination (eqs. 27-28). Returns the bank's estimate at ``t_next_s``.
+        the combination (eqs. 27-28). ``previous_z`` (the measurement at ``k``, if known) lets
+        the evidence tell a reading that did not move. Returns the bank's estimate at
+        ``t_next_s``.
         """
         kern = self.ukf.kernels
         r, nx = previous.mode_means.shape
         log_c, mixed_mean, mixed_cov = self._mix(previous)  # eqs. (6)-(8)
+        weights = self._mix_weights(previous, log_c)
+        widths = None
+        if weights is not None and measurement is not None and self.evidence is not None:
+            widths = self.evidence.widths(weights)  # (r, 6): the IMU channels lead the output
+            if widths is not None:
+                extra = np.zeros((r, measurement.model.nz))
+                extra[:, : widths.shape[1]] = widths
+                measurement = Measurement(measurement.z, measurement.model, extra)
         prior = self.ukf.initial_estimate(previous.t_s, mixed_mean, mixed_cov)
         filtered = self.ukf.step(prior, t_next_s, u, measurement, process)  # eqs. (9)-(25)
 
         log_likelihood = filtered.log_likelihood
         if self.evidence is not None and filtered.updated:
             assert measurement is not None and filtered.innovation is not None
-            log_likelihood = self.evidence(
+            log_likelihood, weights = self.evidence.score(
                 t_next_s, filtered.predicted_mean, filtered.innovation,
-                filtered.innovation_cov, measurement.z, u, log_likelihood,
+                filtered.innovation_cov, measurement.z, u, log_likelihood, weights, previous_z,
+                widths,
             )  # fmt: skip
         log_mu = np.empty(r)
         probs = np.empty(r)
@@ -238,4 +269,5 @@ class ImmEstimator:
             None
             if filtered.innovation_cov is None
             else np.diagonal(filtered.innovation_cov, axis1=1, axis2=2).copy(),
+            weights,
         )

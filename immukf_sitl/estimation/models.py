@@ -179,6 +179,9 @@ class Measurement:
 
     z: np.ndarray
     model: MeasurementModel
+    #: ``(batch, nz)``: variance each filter adds to each channel at this step only (e.g. a
+    #: fault mode's width on a channel it believes dead or stuck); None: nothing
+    extra_var: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         z = np.asarray(self.z, dtype=float)

@@ -351,6 +351,10 @@ class UnscentedKalmanFilter:
         batch, nx = pred_mean.shape
         model = measurement.model
         z_angle, added_r = self._output_constants_of(model, batch)
+        if measurement.extra_var is not None:
+            idx = np.arange(model.nz)
+            added_r = added_r.copy()
+            added_r[:, idx, idx] += measurement.extra_var
         if augmented:
             w_points = self._measurement_noise_points(model, weights.spread, nx + proc.nv, batch)
             z_points = model.g(t_next_s, x_points, u, w_points)  # eq. (15)

@@ -10,6 +10,7 @@ import math
 from collections.abc import Sequence
 from pathlib import Path
 
+from immukf_sitl.estimation.fault_modes import single_fault_modes
 from immukf_sitl.experiments.campaign import Campaign
 from immukf_sitl.experiments.campaign_run import fly
 from immukf_sitl.experiments.campaign_summary import (
@@ -36,8 +37,7 @@ def write_figure(campaign: Campaign, path: Path) -> str | None:
         return None
     run, monitor = fly(spec)
     summary = run.summary()
-    modes = run.history.outputs[0].modes if run.history.outputs else ()
-    t, probabilities = run.history.probability_series([m.name for m in modes])
+    t, probabilities = run.history.probability_series([m.name for m in single_fault_modes()])
     plot_summary(str(path), summary, t, probabilities, run.truth, run.history.track())
     detections = ", ".join(f"{e.mode.name} at {e.t_s:.2f} s" for e in summary.detections)
     return (

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from immukf_sitl.errors import UserError
+from immukf_sitl.estimation.fault_modes import single_fault_modes
 from immukf_sitl.experiments.report import (
     EstimateHistory,
     Summary,
@@ -74,10 +75,8 @@ def summary_of(result: ReplayResult, scenario_name: str) -> Summary:
 
 
 def probability_series(result: ReplayResult) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-    """Mode probabilities over time, keyed by their MAVLink names."""
-    outputs = result.history.outputs
-    names = [probability_name(m) for m in outputs[0].modes] if outputs else []
-    return result.history.probability_series(names)
+    """P(no failure) and P(each channel failed) over time, keyed by their MAVLink names."""
+    return result.history.probability_series([probability_name(m) for m in single_fault_modes()])
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:

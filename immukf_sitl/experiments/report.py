@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from immukf_sitl.estimation.angles import wrap_angle
-from immukf_sitl.estimation.fault_modes import FaultMode
+from immukf_sitl.estimation.fault_modes import FaultMode, failure_marginals
 from immukf_sitl.experiments.observability import fault_observable_time_s
 from immukf_sitl.models.earth import NedOrigin, geodetic_to_ned
 from immukf_sitl.models.sensors import ImuSpec
@@ -72,11 +72,16 @@ class EstimateHistory:
         return TimingStats.of(o.step_us for o in self.outputs)
 
     def probability_series(self, names: Sequence[str]) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-        """Mode probabilities over time, keyed by ``names`` (one per mode, in mode order)."""
+        """P(no failure) and P(each channel failed) over time, keyed by ``names``.
+
+        ``names`` name the seven figures of :func:`failure_marginals` in their order (the
+        paper's bank's modes: the marginals are its mode probabilities; a re-based bank's
+        change slots at each declaration, the marginals do not).
+        """
         if not self.outputs:
             return np.zeros(0), {}
         t = np.array([o.t_s for o in self.outputs])
-        probs = np.array([o.mode_probabilities for o in self.outputs])
+        probs = np.array([failure_marginals(o.modes, o.mode_probabilities) for o in self.outputs])
         return t, {name: probs[:, j] for j, name in enumerate(names)}
 
 
@@ -240,9 +245,42 @@ def _named_detections(events: Sequence[DetectionEvent]) -> tuple[DetectionEvent,
     for event in events:
         if event.kind == "detected":
             out.append(event)
-        elif event.kind == "named" and out and out[-1].mode == event.mode:
-            out[-1] = dataclasses.replace(out[-1], failure=event.failure, size=event.size)
+        elif event.kind == "named":
+            k = next((k for k in reversed(range(len(out))) if out[k].mode == event.mode), None)
+            if k is not None:
+                out[k] = dataclasses.replace(out[k], failure=event.failure, size=event.size)
     return tuple(out)
+
+
+def _declared_sets(events: Sequence[DetectionEvent]) -> list[tuple[DetectionEvent, int]]:
+    """Each detection and clearing, with the bits of everything declared once it took effect."""
+    out = []
+    for event in events:
+        if event.kind not in ("detected", "cleared"):
+            continue
+        if event.declared_after is not None:
+            bits = event.declared_after.bits
+        else:  # a detector that holds one mode at a time
+            bits = event.mode.bits if event.kind == "detected" else 0
+        out.append((event, bits))
+    return out
+
+
+def _first_declaration(
+    fault: FaultSpec, sets: Sequence[tuple[DetectionEvent, int]]
+) -> DetectionEvent | None:
+    """The first detection after ``fault`` began that left all its channels declared at once."""
+    bits = fault.mode.bits
+    return next(
+        (
+            event
+            for event, declared in sets
+            if event.kind == "detected"
+            and event.t_s >= fault.t_s - 1e-9
+            and declared & bits == bits
+        ),
+        None,
+    )
 
 
 def summarize(
@@ -267,13 +305,19 @@ def summarize(
         [np.concatenate([s.specific_force_mps2, s.rates_radps]) for s in truth]
     ).reshape(-1, 6)
     detections = _named_detections(events)
+    sets = _declared_sets(events)
     first_estimate_s = float(track.attitude_t_s[0]) if track.attitude_t_s.size else 0.0
     outcomes = []
     for fault in faults:
         observable = fault_observable_time_s(fault, t_truth, true_imu, imu_noise)
         mode = fault.mode
         start = max(fault.t_s, observable) if observable is not None else None
-        first = next((e for e in detections if e.mode == mode and e.t_s >= fault.t_s - 1e-9), None)
+        declaration = _first_declaration(fault, sets)
+        first = next(
+            (e for e in detections if declaration is not None and e.t_s == declaration.t_s
+             and e.mode == declaration.mode),
+            None,
+        )  # fmt: skip
         delay = None if first is None or start is None else first.t_s - start
         outcomes.append(
             FaultOutcome(
@@ -293,7 +337,9 @@ def summarize(
         faults=tuple(outcomes),
         detections=detections,
         clearings=tuple(e for e in events if e.kind == "cleared"),
-        false_alarms=tuple(e for e in detections if e.mode != _active_mode(faults, e.t_s)),
+        false_alarms=tuple(
+            e for e in detections if e.mode.bits & ~_active_mode(faults, e.t_s).bits
+        ),
         est_error=estimation_errors(truth, track, first_estimate_s + settle_s),
         step_us=step_us,
     )

@@ -1,7 +1,8 @@
 """Outbound messages of the estimator service (README, "The wire").
 
-Builds ATTITUDE, ATTITUDE_QUATERNION, GLOBAL_POSITION_INT, NAMED_VALUE_FLOAT (one per mode
-probability), NAMED_VALUE_INT ``IMM_FAULT`` (the declared fault mode's bits at each detection or
+Builds ATTITUDE, ATTITUDE_QUATERNION, GLOBAL_POSITION_INT, NAMED_VALUE_FLOAT (P(no failure)
+and P(each channel failed), the mode probabilities of the paper's bank), NAMED_VALUE_INT
+``IMM_FAULT`` (the bits of every channel declared after each detection or
 clearing, time-stamped, so a tlog reader sees when it happened) and STATUSTEXT from an
 :class:`~immukf_sitl.service.pipeline.EstimateOutput`, at configurable rates of the IMU clock.
 
@@ -19,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from immukf_sitl.estimation.fault_modes import FaultMode
+from immukf_sitl.estimation.fault_modes import FaultMode, failure_marginals, single_fault_modes
 from immukf_sitl.fault_kinds import FAULT_KINDS
 from immukf_sitl.mavlink.codec import euler_to_quaternion, heartbeat_message
 from immukf_sitl.mavlink.wire import MavMessage, mavlink
@@ -92,7 +93,12 @@ def event_messages(event: DetectionEvent) -> list[MavMessage]:
             mavlink.MAVLink_named_value_int_message(ms, KIND_EVENT_NAME.encode(), kind),
             mavlink.MAVLink_named_value_float_message(ms, SIZE_EVENT_NAME.encode(), size),
         ]
-    value = event.mode.bits if event.kind == "detected" else 0
+    if event.kind == "unisolated":
+        return [event_text(event)]
+    if event.declared_after is not None:
+        value = event.declared_after.bits
+    else:
+        value = event.mode.bits if event.kind == "detected" else 0
     return [
         event_text(event),
         mavlink.MAVLink_named_value_int_message(ms, FAULT_EVENT_NAME.encode(), value),
@@ -151,7 +157,8 @@ class Publisher:
                 )
             )
         if self._probs.due(t_s):
-            for mode, prob in zip(out.modes, out.mode_probabilities, strict=True):
+            marginals = failure_marginals(out.modes, out.mode_probabilities)
+            for mode, prob in zip(single_fault_modes(), marginals, strict=True):
                 msgs.append(
                     mavlink.MAVLink_named_value_float_message(
                         ms, probability_name(mode).encode(), float(prob)

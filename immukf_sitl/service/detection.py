@@ -1,32 +1,28 @@
 """Fault declaration from mode probabilities: threshold, dwell, signature, clearing, settling.
 
-The IMM is decision free (paper, section 2.D); a user needs a decision. A fault mode is
-declared when its probability stays at or above ``threshold`` for ``dwell_s`` *and* its failed
-channels show the mode's signature over the last ``signature_window`` samples, a chi-square
-test at ``signature_quantile`` of the sum of the mode's normalised squared residuals on them:
+The IMM is decision free (paper, section 2.D); a user needs a decision. This module holds what
+the two detectors share, :class:`DetectorConfig`, :class:`DetectionEvent` and the
+:class:`SignatureWindow`, and the paper bank's detector, :class:`FaultDetector`. The bank
+re-based on its declarations (untrusted modes) has its own,
+:class:`~immukf_sitl.service.declared_set.DeclaredSetDetector`.
 
-- an **untrusted** mode: the readings are *inconsistent* with the mode's own
-  prediction of the channel from the other sensors (the sum beyond the quantile), or they read
-  zero plus noise as below (the mode's "dead or anything",
-  :class:`~immukf_sitl.estimation.fault_modes.DeadOrAnyEvidence`). The probabilities already
-  weigh this; the window makes one outlier that tips them short of a declaration.
-- a **zero** mode (the paper's, the default): the readings are *consistent* with zero plus
-  noise (the sum within the quantile). The filters' probabilities weigh a channel against the
-  model's prediction of it; on a real airframe in turbulence that model is wrong by more than the
-  sensor noise, and a zero mode that ignores the channel the model explains worst wins,
-  whatever the channel reads. A healthy channel whose true value sits within about a noise
-  sigma of zero for the whole window passes the test too: there the probabilities decide
-  alone.
+:class:`FaultDetector` runs over the paper's fixed bank of zero modes (fault-free and one mode
+per channel). A fault mode is declared when its probability stays at or above ``threshold`` for
+``dwell_s`` *and* its failed channel reads zero plus noise over the last ``signature_window``
+samples (the sum of its squared readings in noise sigmas within the chi-square quantile
+``signature_quantile``). The filters' probabilities weigh a channel against the model's
+prediction of it; on a real airframe in turbulence that model is wrong by more than the sensor
+noise, and a zero mode that ignores the channel the model explains worst would win, whatever
+the channel reads. A healthy channel whose true value sits within about a noise sigma of zero
+for the whole window passes the test too: there the probabilities decide alone.
 
 A declaration is cleared when its probability stays below ``clear_threshold`` for
-``clear_dwell_s``. For a zero mode the declared channels must also have shown life: at least
-``alive_samples`` readings more than ``alive_sigmas`` noise sigmas from zero since the
-declaration. A zeroed sensor reads beyond 5 sigma once in about 1.7 million samples (4.8 h at
-100 Hz), so a zero mode's declaration, which cannot be told from a healthy one while the true
-value is near zero, is never cleared nor replaced while the sensor stays dead. An untrusted
-mode's probability falls only on readings that agree with the other sensors, so it needs no
-such latch. Nothing is declared during the first ``settle_s`` after the estimator starts (its
-covariances are still converging from the initial alignment).
+``clear_dwell_s`` and the declared channel has shown life: at least ``alive_samples`` readings
+more than ``alive_sigmas`` noise sigmas from zero since the declaration. A zeroed sensor reads
+beyond 5 sigma once in about 1.7 million samples (4.8 h at 100 Hz), so a declaration, which
+cannot be told from a healthy channel while the true value is near zero, is never cleared nor
+replaced while the sensor stays dead. Nothing is declared during the first ``settle_s`` after
+the estimator starts (its covariances are still converging from the initial alignment).
 """
 
 from __future__ import annotations
@@ -38,7 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import chi2
 
-from immukf_sitl.estimation.fault_modes import FAULT_SIGNATURES, FaultMode
+from immukf_sitl.estimation.fault_modes import FaultMode
 
 
 @dataclass(frozen=True)
@@ -86,6 +82,8 @@ class DetectionEvent:
     """A fault declared (``kind="detected"``), named (``"named"``) or cleared (``"cleared"``).
 
     A naming carries the failure's kind and size (:mod:`immukf_sitl.service.fault_naming`).
+    ``"unisolated"``: the declared set no longer explains the sensors and no single channel
+    more does; ``mode`` holds the channels in doubt.
     """
 
     kind: str
@@ -94,6 +92,8 @@ class DetectionEvent:
     probability: float
     failure: str | None = None
     size: float | None = None
+    #: every channel declared once the event took effect (None: ``mode`` if detected, else none)
+    declared_after: FaultMode | None = None
 
     def to_json(self) -> dict[str, object]:
         """``{"kind", "mode", "t_s", "probability"}`` (+ ``failure``, ``size`` when named)."""
@@ -129,12 +129,58 @@ class DetectionEvent:
             if self.failure == "zero":
                 words = "reads zero"
             return f"IMM: {self.mode.description} {words}, p={self.probability:.2f}"[:50]
+        if self.kind == "unisolated":
+            what = " or ".join(self.mode.channels)
+            return f"IMM: cannot isolate fault: {what}, p={self.probability:.2f}"[:50]
         verb = "detected" if self.kind == "detected" else "cleared"
         return f"IMM: {self.mode.description} fault {verb}, p={self.probability:.2f}"[:50]
 
 
+class SignatureWindow:
+    """The last ``signature_window`` readings and residuals, and the chi-square tests on them.
+
+    ``readings`` are the six IMU channels in noise sigmas; ``residuals`` ``(r, 6)`` each mode's
+    normalised squared residual of its own prediction of each channel. Both tests hold over the
+    samples there are while fewer than the window have been seen, and pass with none (the
+    probabilities decide alone).
+    """
+
+    def __init__(self, config: DetectorConfig) -> None:
+        self._readings: deque[np.ndarray] = deque(maxlen=config.signature_window)
+        self._residuals: deque[np.ndarray] = deque(maxlen=config.signature_window)
+        dof = np.arange(1, config.signature_window + 1)
+        self._limit = chi2.ppf(config.signature_quantile, dof)  # for 1 .. window samples
+
+    def push(self, readings: np.ndarray | None, residuals: np.ndarray | None) -> None:
+        """One step's normalised readings and residuals (either may be missing)."""
+        if readings is not None:
+            self._readings.append(np.asarray(readings, dtype=float))
+        if residuals is not None:
+            self._residuals.append(np.asarray(residuals, dtype=float))
+
+    def forget_residuals(self) -> None:
+        """Drop the residuals (the bank's modes changed: old rows mean other modes)."""
+        self._residuals.clear()
+
+    def reads_zero(self, failed: np.ndarray) -> bool:
+        """Whether every channel of the boolean mask ``failed`` read zero plus noise."""
+        n = len(self._readings)
+        if n == 0:
+            return True
+        energy = np.sum(np.square(np.array(self._readings)), axis=0)
+        return bool(np.all(energy[failed] <= self._limit[n - 1]))
+
+    def reads_inconsistent(self, j: int, failed: np.ndarray) -> bool:
+        """Whether a channel of ``failed`` disagreed with mode ``j``'s own prediction of it."""
+        n = len(self._residuals)
+        if n == 0:
+            return True
+        energy = np.sum(np.array(self._residuals)[:, j, :], axis=0)
+        return bool(np.any(energy[failed] > self._limit[n - 1]))
+
+
 class FaultDetector:
-    """Turns a stream of mode probabilities into detection and clearing events.
+    """The paper bank's decision: zero modes declared, cleared and latched (module docstring).
 
     Parameters
     ----------
@@ -144,72 +190,23 @@ class FaultDetector:
     config : DetectorConfig
     start_s : float
         Time the estimator started (the settling period counts from it).
-    signature : str
-        What the modes predict on their failed channels: ``zero`` or ``untrusted``
-        (:data:`~immukf_sitl.estimation.fault_modes.FAULT_SIGNATURES`).
     """
 
-    def __init__(
-        self,
-        modes: Sequence[FaultMode],
-        config: DetectorConfig,
-        start_s: float,
-        signature: str = "zero",
-    ):
-        if signature not in FAULT_SIGNATURES:
-            raise ValueError(
-                f"signature: expected one of {', '.join(FAULT_SIGNATURES)}, got {signature!r}"
-            )
+    signature = "zero"
+
+    def __init__(self, modes: Sequence[FaultMode], config: DetectorConfig, start_s: float):
         self.modes = tuple(modes)
         self.config = config
         self.start_s = start_s
-        self.signature = signature
         self.declared: FaultMode | None = None
         self._above_since: dict[int, float] = {}
         self._below_since: float | None = None
         self._alive = 0  # readings of the declared channels beyond the noise since declared
-        self._recent: deque[np.ndarray] = deque(maxlen=config.signature_window)
-        self._residuals: deque[np.ndarray] = deque(maxlen=config.signature_window)
-        # chi-square limits for 1 .. signature_window readings
-        dof = np.arange(1, config.signature_window + 1)
-        self._limit = chi2.ppf(config.signature_quantile, dof)
+        self._window = SignatureWindow(config)
 
     def reads_zero(self, mode: FaultMode) -> bool:
-        """Whether every failed channel of ``mode`` read zero plus noise over the window.
-
-        Over the readings there are when fewer than ``signature_window`` have been seen (the
-        detector's first samples); True with none (the probabilities decide alone).
-        """
-        n = len(self._recent)
-        if n == 0:
-            return True
-        failed = mode.healthy_mask == 0.0
-        energy = np.sum(np.square(np.array(self._recent)), axis=0)
-        return bool(np.all(energy[failed] <= self._limit[n - 1]))
-
-    def reads_inconsistent(self, j: int) -> bool:
-        """Whether a failed channel of mode ``j`` disagreed with the mode's prediction of it.
-
-        The sum over the window of the mode's normalised squared residuals on a failed
-        channel beyond the chi-square quantile; True with no residuals (the probabilities
-        decide alone).
-        """
-        n = len(self._residuals)
-        if n == 0:
-            return True
-        failed = self.modes[j].healthy_mask == 0.0
-        energy = np.sum(np.array(self._residuals)[:, j, :], axis=0)
-        return bool(np.any(energy[failed] > self._limit[n - 1]))
-
-    def shows_signature(self, j: int) -> bool:
-        """The declaration test of mode ``j`` for the bank's signature.
-
-        An untrusted mode fits a dead channel or one that reads anything: its channel reads
-        zero plus noise, or disagrees with what the other sensors say it should read.
-        """
-        if self.signature == "zero":
-            return self.reads_zero(self.modes[j])
-        return self.reads_zero(self.modes[j]) or self.reads_inconsistent(j)
+        """Whether every failed channel of ``mode`` read zero plus noise over the window."""
+        return self._window.reads_zero(mode.healthy_mask == 0.0)
 
     def update(
         self,
@@ -217,15 +214,15 @@ class FaultDetector:
         probabilities: np.ndarray,
         imu: np.ndarray | None = None,
         imu_sigmas: np.ndarray | None = None,
-        residuals: np.ndarray | None = None,
+        innovations: tuple[np.ndarray, np.ndarray] | None = None,
+        failure_weights: np.ndarray | None = None,
     ) -> list[DetectionEvent]:
         """Feed the probabilities at ``t_s``; returns the events this sample caused.
 
         ``imu`` (the six readings) and ``imu_sigmas`` (their noise sigmas) feed the zero test
-        and show whether a declared zero mode's channel is alive; without them a declared fault
-        clears on the probabilities alone. ``residuals`` ``(r, 6)`` are the modes' normalised
-        squared residuals (:meth:`AircraftEstimator.channel_residuals`) the untrusted test
-        reads.
+        and show whether a declared channel is alive; without them a declared fault clears on
+        the probabilities alone. ``innovations`` and ``failure_weights`` are unused (the zero
+        test reads the readings themselves); they keep one signature for both detectors.
         """
         cfg = self.config
         events: list[DetectionEvent] = []
@@ -233,9 +230,7 @@ class FaultDetector:
             return events
         if imu is not None and imu_sigmas is not None:
             n = len(imu_sigmas)
-            self._recent.append(np.asarray(imu, dtype=float)[:n] / np.asarray(imu_sigmas))
-        if residuals is not None:
-            self._residuals.append(np.asarray(residuals, dtype=float))
+            self._window.push(np.asarray(imu, dtype=float)[:n] / np.asarray(imu_sigmas), None)
         if self.declared is not None and imu is not None and imu_sigmas is not None:
             readings = np.abs(np.asarray(imu)[: len(imu_sigmas)])
             mask = self.declared.healthy_mask == 0.0
@@ -248,7 +243,7 @@ class FaultDetector:
                 self._above_since.setdefault(j, t_s)
             else:
                 self._above_since.pop(j, None)
-        alive = self.signature != "zero" or imu_sigmas is None or self._alive >= cfg.alive_samples
+        alive = imu_sigmas is None or self._alive >= cfg.alive_samples
         if self.declared is not None:
             j = self.modes.index(self.declared)
             p = float(probabilities[j])
@@ -269,7 +264,7 @@ class FaultDetector:
             return events
         for j, since in sorted(self._above_since.items(), key=lambda kv: -probabilities[kv[0]]):
             mode = self.modes[j]
-            if mode == self.declared or t_s - since < cfg.dwell_s or not self.shows_signature(j):
+            if mode == self.declared or t_s - since < cfg.dwell_s or not self.reads_zero(mode):
                 continue
             if self.declared is not None:
                 events.append(

@@ -21,7 +21,6 @@ noise) is an independent estimate of what the channel should read. The readings 
 from __future__ import annotations
 
 import math
-from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -126,7 +125,10 @@ def _noise(e: np.ndarray, s2: np.ndarray, r: float) -> tuple[float, int, str, fl
 
 
 class FaultNamer:
-    """Gathers each step's readings and predictions; names a declaration once its window is in.
+    """Gathers each step's readings and predictions; names each declaration once its window is in.
+
+    Every declared channel is named on its own (a second failure declared within the first's
+    window does not lose the first's name).
 
     Parameters
     ----------
@@ -139,32 +141,34 @@ class FaultNamer:
     def __init__(self, noise_sigmas: np.ndarray, window_s: float = NAMING_WINDOW_S) -> None:
         self.noise_sigmas = np.asarray(noise_sigmas, dtype=float)
         self.window_s = window_s
-        self._pending: tuple[int, int, float] | None = None  # mode, channel, declared at
-        self._samples: deque[tuple[float, float, float, float]] = deque()
+        self._pending: dict[int, tuple[int, float]] = {}  # channel -> mode slot, declared at
+        self._samples: dict[int, list[tuple[float, float, float, float]]] = {}
 
     def declared(self, mode_index: int, channel: int, t_s: float) -> None:
         """Start gathering for mode ``mode_index``'s failed ``channel``, declared at ``t_s``."""
-        self._pending = (mode_index, channel, t_s)
-        self._samples.clear()
+        self._pending[channel] = (mode_index, t_s)
+        self._samples[channel] = []
 
-    def cancel(self) -> None:
-        """Forget the pending declaration (it was cleared or replaced)."""
-        self._pending = None
-        self._samples.clear()
+    def cancel(self, channel: int | None = None) -> None:
+        """Forget a pending declaration (``channel``; None: all of them)."""
+        for c in list(self._pending) if channel is None else [channel]:
+            self._pending.pop(c, None)
+            self._samples.pop(c, None)
 
     def observe(
         self, t_s: float, imu: np.ndarray, innovations: np.ndarray, variances: np.ndarray
-    ) -> FailureName | None:
-        """Feed one step; returns the failure's name once the window after it is full."""
-        if self._pending is None:
-            return None
-        j, i, since = self._pending
-        z = float(imu[i])
-        if not math.isfinite(z):
-            return None
-        self._samples.append((t_s, z, z - float(innovations[j, i]), float(variances[j, i])))
-        if t_s - since < self.window_s - 1e-9 or len(self._samples) < 3:
-            return None
-        t, zs, hs, s2 = (np.array(c) for c in zip(*self._samples, strict=True))
-        self.cancel()
-        return classify_failure(t, zs, hs, s2, float(self.noise_sigmas[i]))
+    ) -> list[tuple[int, FailureName]]:
+        """Feed one step; returns ``(channel, name)`` of each failure whose window is full."""
+        out = []
+        for i, (j, since) in list(self._pending.items()):
+            z = float(imu[i])
+            if not math.isfinite(z):
+                continue
+            samples = self._samples[i]
+            samples.append((t_s, z, z - float(innovations[j, i]), float(variances[j, i])))
+            if t_s - since < self.window_s - 1e-9 or len(samples) < 3:
+                continue
+            t, zs, hs, s2 = (np.array(c) for c in zip(*samples, strict=True))
+            self.cancel(i)
+            out.append((i, classify_failure(t, zs, hs, s2, float(self.noise_sigmas[i]))))
+        return out

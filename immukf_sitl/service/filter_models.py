@@ -25,6 +25,8 @@ A third model is one more :class:`FilterModel` subclass and its entry in :data:`
 
 from __future__ import annotations
 
+import copy
+import dataclasses
 from abc import ABC, abstractmethod
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -34,6 +36,7 @@ import numpy as np
 
 from immukf_sitl.estimation import (
     FAULT_SIGNATURES,
+    ChannelOffset,
     DeadOrAnyEvidence,
     FaultMode,
     ImmEstimate,
@@ -45,6 +48,7 @@ from immukf_sitl.estimation import (
     ScaledSigmaPoints,
     fault_mode_noise_var,
 )
+from immukf_sitl.estimation.fault_modes import FAILURE_PRIOR, N_IMU, OFFSET_PRIOR_VAR
 from immukf_sitl.models.aero import AeroModel
 from immukf_sitl.models.airframe import AirframeUncertainty
 from immukf_sitl.models.augmented import (
@@ -116,6 +120,83 @@ class ModelDynamics(ABC):
 
     flown: AeroModel | AugmentedAeroModel
     process: ProcessModel
+    modes: tuple[FaultMode, ...]
+    sensors: SensorSpec
+
+    #: the untrusted modes' offsets on their newly failed channels (None: zero modes)
+    offset: ChannelOffset | None = None
+
+    def with_modes(self, modes: Sequence[FaultMode]) -> ModelDynamics:
+        """The same model over another bank of modes (a bank re-based on a declaration).
+
+        Only the evidence, the offsets and the turbulence adapter's choice of channels read the
+        modes; the process, the flown model and what was learnt are shared.
+        """
+        other = copy.copy(self)
+        other.modes = tuple(modes)
+        if self.offset is not None:
+            other.offset = dataclasses.replace(self.offset, modes=other.modes)
+        return other
+
+    def _offset_state(self, sensors: SensorSpec, model: FilterModel) -> None:
+        """Append the six offsets to :attr:`process` for untrusted modes (see ChannelOffset)."""
+        if model.fault_signature != "untrusted":
+            return
+        n, k = self.process.nx, N_IMU
+        walk = (model.offset_walk_sigmas * sensors.imu.gyro_sigma_radps) ** 2
+        walk_var = walk / sensors.imu.gyro_range_radps**2  # in full scales
+        self.offset = ChannelOffset(self.modes, sensors.imu.ranges, n, walk_var)
+        inner = self.process.f
+
+        def f(t_s: float, x: np.ndarray, u: np.ndarray, v: np.ndarray | None) -> np.ndarray:
+            out = np.empty(x.shape)
+            out[:n] = inner(t_s, x[:n], u, v)
+            out[n:] = x[n:]  # random walks: their noise is the state noise below
+            return out
+
+        def padded(cov: np.ndarray | None) -> np.ndarray:
+            out = np.zeros((n + k, n + k))
+            if cov is not None:
+                out[:n, :n] = cov
+            out[range(n, n + k), range(n, n + k)] = walk_var
+            return out
+
+        p = self.process
+        self.process = ProcessModel(
+            f, n + k, p.noise_cov, padded(p.additive_noise_cov), p.angle_idx,
+            padded(p.state_noise_cov), p.consider_idx,
+        )  # fmt: skip
+
+    def _with_offset(self, mean: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``mean``, ``cov`` of the model's states, the offset appended at its prior."""
+        if self.offset is None:
+            return mean, cov
+        n, k = mean.shape[0], N_IMU
+        full_mean = np.zeros(n + k)
+        full_mean[:n] = mean
+        full_cov = np.zeros((n + k, n + k))
+        full_cov[:n, :n] = cov
+        full_cov[range(n, n + k), range(n, n + k)] = OFFSET_PRIOR_VAR
+        return full_mean, full_cov
+
+    def _idle_offsets(self, bank: ImmEstimate) -> ImmEstimate:
+        """The slots that read no offset hold it at its prior (what mixing seeds others with)."""
+        if self.offset is None:
+            return bank
+        means, covs = self.offset.reset(bank.mode_means, bank.mode_covs)
+        weights = bank.failure_weights
+        if weights is not None:
+            weights = weights.copy()
+            weights[~self.offset.failed.T] = FAILURE_PRIOR
+        return dataclasses.replace(bank, mode_means=means, mode_covs=covs, failure_weights=weights)
+
+    def settled_offsets(self, bank: ImmEstimate) -> ImmEstimate:
+        """``bank`` with each slot's trusted channels' offsets and weights at their prior.
+
+        What every step ends with, and what a bank moved onto new slots needs (a re-base: a
+        slot may now trust a channel whose offset its source had learnt).
+        """
+        return self._idle_offsets(bank)
 
     @abstractmethod
     def sigma_points(self, kappa: float) -> JulierSigmaPoints | ScaledSigmaPoints:
@@ -146,8 +227,12 @@ class ModelDynamics(ABC):
         t_next_s: float,
         controls_pair: np.ndarray,
         z: Measurement,
+        previous_z: np.ndarray | None = None,
     ) -> tuple[ImmEstimate, TurbulenceEstimate | None]:
-        """One bank step (eqs. 6-28) and what the model learnt of the air from it."""
+        """One bank step (eqs. 6-28) and what the model learnt of the air from it.
+
+        ``previous_z``: the IMU reading of the step before (a stuck channel repeats it).
+        """
 
     @abstractmethod
     def wind_ned_mps(self, mean: np.ndarray) -> np.ndarray | None:
@@ -164,6 +249,9 @@ class FilterModel(ABC):
     (:data:`~immukf_sitl.estimation.fault_modes.FAULT_SIGNATURES`): ``zero`` (the paper's zero
     plus noise; the default) or ``untrusted`` (anything within the sensor's range, so every way
     a sensor fails fits; docs/design/detection-and-tuning.md says what it does and misses).
+    An untrusted mode reads its newly failed channel through an offset state
+    (:class:`~immukf_sitl.estimation.fault_modes.ChannelOffset`) that walks by
+    ``offset_walk_sigmas`` gyro noise sigmas a step (in full scales: 0.41 of an accelerometer's).
     """
 
     name: ClassVar[str]
@@ -172,9 +260,15 @@ class FilterModel(ABC):
     recovery_probability: float
     probability_floor: float
     fault_signature: str
+    offset_walk_sigmas: float
 
     def transition(self, modes: Sequence[FaultMode]) -> np.ndarray:
-        """``T[i, j] = P(M(k+1)=j | M(k)=i)`` (eq. 3) over ``modes`` (fault-free first)."""
+        """``T[i, j] = P(M(k+1)=j | M(k)=i)`` (eq. 3) over ``modes``, the base mode first.
+
+        The base (fault-free in the paper's bank, the declared set in a re-based one,
+        :func:`~immukf_sitl.estimation.fault_modes.bank_modes`) goes to each other mode with
+        the onset probability; each other mode goes back to it with the recovery probability.
+        """
         r = len(modes)
         if r == 1:
             return np.ones((1, 1))
@@ -182,12 +276,9 @@ class FilterModel(ABC):
         if not (0 < eps * (r - 1) < 1 and 0 < delta + eps * (r - 2) < 1):
             raise ValueError("onset/recovery probabilities leave no mass to stay in a mode")
         matrix = np.full((r, r), eps)
-        healthy = [j for j, m in enumerate(modes) if m.bits == 0]
-        for i, mode in enumerate(modes):
-            if mode.bits != 0 and healthy:
-                matrix[i, healthy[0]] = delta
-            matrix[i, i] = 0.0
-            matrix[i, i] = 1.0 - matrix[i].sum()
+        matrix[1:, 0] = delta
+        np.fill_diagonal(matrix, 0.0)
+        np.fill_diagonal(matrix, 1.0 - matrix.sum(axis=1))
         return matrix
 
     @abstractmethod
@@ -290,6 +381,7 @@ class PaperModel(FilterModel):
     recovery_probability: float = 0.25
     probability_floor: float = 1e-6
     fault_signature: str = "zero"
+    offset_walk_sigmas: float = 1.0
 
     def __post_init__(self) -> None:
         self._check_positive(process_noise_factor=self.process_noise_factor)
@@ -306,14 +398,14 @@ class PaperModel(FilterModel):
         return _PaperDynamics(aero, sensors, self, tuple(modes))
 
 
-def _untrusted_evidence(
-    model: FilterModel, sensors: SensorSpec, modes: tuple[FaultMode, ...]
-) -> DeadOrAnyEvidence | None:
+def _untrusted_evidence(dynamics: ModelDynamics) -> DeadOrAnyEvidence | None:
     """The "dead or anything" scoring of a bank of untrusted modes (None: zero modes, one mode)."""
-    if model.fault_signature != "untrusted" or len(modes) == 1:
+    modes, sensors = dynamics.modes, dynamics.sensors
+    if dynamics.offset is None or len(modes) == 1:
         return None
     width = fault_mode_noise_var(modes, "untrusted", sensors.imu.ranges)
-    return DeadOrAnyEvidence(modes, np.diagonal(sensors.imu.noise_cov()), width)
+    noise_var = np.diagonal(sensors.imu.noise_cov())
+    return DeadOrAnyEvidence(modes, noise_var, width, offset=dynamics.offset)
 
 
 class _PaperDynamics(ModelDynamics):
@@ -338,6 +430,7 @@ class _PaperDynamics(ModelDynamics):
         self.process = ProcessModel(
             f=f, nx=aero.nx, noise_cov=q, additive_noise_cov=additive, angle_idx=aero.angle_indices
         )
+        self._offset_state(sensors, model)
 
     def sigma_points(self, kappa: float) -> JulierSigmaPoints:
         """Julier's points (the paper's unscented transform, eqs. 11-12)."""
@@ -345,11 +438,11 @@ class _PaperDynamics(ModelDynamics):
 
     def gate(self) -> DeadOrAnyEvidence | None:
         """None for zero modes (as in the paper); "dead or anything" for untrusted ones."""
-        return _untrusted_evidence(self.model, self.sensors, self.modes)
+        return _untrusted_evidence(self)
 
     def augmented(self, mean: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The rigid-body state is the whole state."""
-        return np.array(mean, dtype=float), np.array(cov, dtype=float)
+        """The rigid-body state is the whole model state (untrusted modes: and the offset)."""
+        return self._with_offset(np.array(mean, dtype=float), np.array(cov, dtype=float))
 
     def initial_state(self, nav: NavSolution) -> tuple[np.ndarray, np.ndarray]:
         """The aligned solution with its own sigmas."""
@@ -368,9 +461,11 @@ class _PaperDynamics(ModelDynamics):
         t_next_s: float,
         controls_pair: np.ndarray,
         z: Measurement,
+        previous_z: np.ndarray | None = None,
     ) -> tuple[ImmEstimate, None]:
         """The bank's step."""
-        return imm.step(previous, t_next_s, controls_pair, z), None
+        bank = imm.step(previous, t_next_s, controls_pair, z, previous_z=previous_z)
+        return self._idle_offsets(bank), None
 
     def wind_ned_mps(self, mean: np.ndarray) -> None:
         """No wind state."""
@@ -428,6 +523,7 @@ class RealAirModel(FilterModel):
     turbulence_floor: float = 0.1
     turbulence_averaging_s: float = 10.0
     fault_signature: str = "zero"
+    offset_walk_sigmas: float = 1.0
 
     def __post_init__(self) -> None:
         self._check_signature()
@@ -452,11 +548,11 @@ class RealAirModel(FilterModel):
         consider_indices(self.consider_states)
 
     def prior_probabilities(self, modes: Sequence[FaultMode], transition: np.ndarray) -> np.ndarray:
-        """Every fault mode at ``initial_fault_probability``, fault-free the rest."""
+        """Every mode but the base (fault-free, or the declared set) at its onset probability."""
         if len(modes) == 1:
             return stationary_distribution(transition)
-        p = self.initial_fault_probability
-        probs = np.array([1.0 if m.bits == 0 else p for m in modes])
+        probs = np.full(len(modes), self.initial_fault_probability)
+        probs[0] = 1.0
         return probs / probs.sum()
 
     def build(
@@ -477,8 +573,6 @@ class _RealAirDynamics(ModelDynamics):
         modes: tuple[FaultMode, ...],
     ) -> None:
         self.model, self.sensors, self.modes = model, sensors, modes
-        #: ``(r, 6)``: 1 on the channels each mode takes as healthy
-        self.healthy_masks = np.array([m.healthy_mask for m in modes], dtype=float)
         self.noise: SlowStateNoise = slow_state_noise(aero.params, sensors, model)
         flown = AugmentedAeroModel(aero, self.noise.decay_per_s)
         self.flown = flown
@@ -507,6 +601,7 @@ class _RealAirDynamics(ModelDynamics):
             state_noise_cov=at_start,
             consider_idx=consider_indices(model.consider_states),
         )
+        self._offset_state(sensors, model)
         self.adapter: TurbulenceAdapter | None = None
         if model.adaptive_turbulence:
             turbulence_idx = [N_RIGID + i for g in (WIND, GUST) for i in range(g.start, g.stop)]
@@ -527,7 +622,7 @@ class _RealAirDynamics(ModelDynamics):
         """
         modes = self.modes
         if self.model.fault_signature == "untrusted":
-            return _untrusted_evidence(self.model, self.sensors, modes)
+            return _untrusted_evidence(self)
         if len(modes) == 1:
             return None
         flown = self.flown
@@ -546,7 +641,7 @@ class _RealAirDynamics(ModelDynamics):
         full_cov = np.zeros((nx, nx))
         full_cov[:N_RIGID, :N_RIGID] = cov
         full_cov[N_RIGID:, N_RIGID:] = np.diag(self.noise.initial_sigma**2)
-        return full_mean, full_cov
+        return self._with_offset(full_mean, full_cov)
 
     def initial_state(self, nav: NavSolution) -> tuple[np.ndarray, np.ndarray]:
         """The aligned solution, its heading off by an unknown wind's crab, and the slow states.
@@ -578,17 +673,21 @@ class _RealAirDynamics(ModelDynamics):
         t_next_s: float,
         controls_pair: np.ndarray,
         z: Measurement,
+        previous_z: np.ndarray | None = None,
     ) -> tuple[ImmEstimate, TurbulenceEstimate | None]:
         """The bank's step at the air's scale, then the scale learnt from its innovations."""
         adapter = self.adapter
         if adapter is None or air is None:
-            return imm.step(previous, t_next_s, controls_pair, z), air
-        bank = imm.step(previous, t_next_s, controls_pair, z, adapter.process_at(air.scale))
+            bank = imm.step(previous, t_next_s, controls_pair, z, previous_z=previous_z)
+            return self._idle_offsets(bank), air
+        process = adapter.process_at(air.scale)
+        bank = imm.step(previous, t_next_s, controls_pair, z, process, previous_z)
+        bank = self._idle_offsets(bank)
         if bank.updated and bank.innovations is not None and bank.innovation_var is not None:
             lead = bank.most_likely_mode
             air = adapter.update(
                 air, bank.innovations[lead, :6], bank.innovation_var[lead, :6],
-                self.healthy_masks[lead],
+                self.modes[lead].healthy_mask,
             )  # fmt: skip
         return bank, air
 

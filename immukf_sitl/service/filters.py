@@ -3,7 +3,8 @@
 - UKF-1: aerodynamic model, one filter matched to the true fault mode (an oracle);
 - UKF-2: aerodynamic model, one filter matched to the fault-free mode;
 - UKF-3: strapdown INS equations (IMU as input, GPS as observation), fault-free;
-- UKF-4 (``imm``): aerodynamic model, IMM over the 7 single fault modes.
+- UKF-4 (``imm``): aerodynamic model, IMM over the 7 single fault modes (with untrusted modes,
+  over the 7 modes about what the detector declared: :meth:`AircraftEstimator.rebased`).
 
 Every variant follows one protocol (:class:`Estimator`): ``initial_estimate(nav, controls, imu)``
 and then ``step(previous, t_next_s, controls, observation) -> VariantEstimate`` once per IMU
@@ -25,6 +26,7 @@ from typing import Literal
 import numpy as np
 
 from immukf_sitl.estimation import (
+    ChannelOffset,
     FaultMode,
     FilterDiagnostics,
     ImmEstimate,
@@ -34,9 +36,9 @@ from immukf_sitl.estimation import (
     MeasurementModel,
     ProcessModel,
     UnscentedKalmanFilter,
+    bank_modes,
     fault_mode_noise_var,
     fault_mode_output,
-    single_fault_modes,
 )
 from immukf_sitl.estimation.ukf import NoiseForm
 from immukf_sitl.models.aero import AeroModel
@@ -66,37 +68,42 @@ def aero_measurement_models(
     modes: Sequence[FaultMode],
     sensors: SensorSpec,
     signature: str = "untrusted",
+    offset: ChannelOffset | None = None,
 ) -> tuple[MeasurementModel, MeasurementModel]:
     """Mode-batched output models (eq. 2): IMU alone, and IMU followed by GPS.
 
     ``signature`` is what a fault mode predicts on its failed channels
-    (:func:`fault_mode_output`); an untrusted mode's width is the IMU's range. The GPS position
-    is the receiver's, wandering error included (a state); its white ``R`` is the receiver's
-    driving noise (the per-fix increment of that error, B&M eq. 7.17).
+    (:func:`fault_mode_output`): an untrusted mode reads its failed channels through ``offset``
+    (their widths are the evidence's, step by step). The GPS
+    position is the receiver's, wandering error included (a state); its white ``R`` is the
+    receiver's driving noise (the per-fix increment of that error, B&M eq. 7.17).
     """
     ranges = sensors.imu.ranges
+    n = model.nx  # the model's states; an offset state, if any, comes after them
+    offsets = offset is not None
 
     def imu(t_s: float, x: np.ndarray, u: np.ndarray, w: np.ndarray | None) -> np.ndarray:
-        return model.imu(t_s, x, u[1])
+        return model.imu(t_s, x[:n], u[1])
 
     def imu_gps(t_s: float, x: np.ndarray, u: np.ndarray, w: np.ndarray | None) -> np.ndarray:
+        x = x[:n]
         return np.concatenate([model.imu(t_s, x, u[1]), model.gps(t_s, x, u[1])])
 
     imu_only = MeasurementModel(
-        fault_mode_output(imu, modes, signature),
+        fault_mode_output(imu, modes, signature, offset=offset),
         sensors.imu.noise_cov(),
         name="imu",
-        mode_noise_var=fault_mode_noise_var(modes, signature, ranges),
+        mode_noise_var=None if offsets else fault_mode_noise_var(modes, signature, ranges),
     )
     gps_cov = np.zeros((11, 11))
     gps_cov[:6, :6] = sensors.imu.noise_cov()
     gps_cov[6:, 6:] = sensors.gps.noise_cov()
     with_gps = MeasurementModel(
-        fault_mode_output(imu_gps, modes, signature, n_extra=5),
+        fault_mode_output(imu_gps, modes, signature, n_extra=5, offset=offset),
         gps_cov,
         angle_idx=(6 + GPS_COURSE_CHANNEL,),
         name="imu+gps",
-        mode_noise_var=fault_mode_noise_var(modes, signature, ranges, n_extra=5),
+        mode_noise_var=None if offsets else fault_mode_noise_var(modes, signature, ranges, 5),
     )
     return imu_only, with_gps
 
@@ -254,6 +261,58 @@ class AircraftEstimator(_Bank):
     imu_gps_model: MeasurementModel
     filter_model: FilterModel
     dynamics: ModelDynamics
+    sensors: SensorSpec
+
+    def rebased(self, declared: FaultMode | None) -> AircraftEstimator:
+        """The same bank over the modes about ``declared`` (:func:`bank_modes`).
+
+        The filters (their kernels and counters) and the model are shared; what changes is what
+        each slot believes, its evidence and the Markov chain over the slots. Carry an estimate
+        across with :meth:`carried_over`.
+        """
+        if self.variant != "imm":
+            raise ValueError(f"only the IMM re-bases, not {self.variant!r}")
+        modes = bank_modes(declared)
+        return _assemble(
+            self.variant, modes, self.imm.ukf, self.dynamics.with_modes(modes),
+            self.filter_model, self.sensors,
+        )  # fmt: skip
+
+    def carried_over(
+        self, estimate: VariantEstimate, previous: AircraftEstimator
+    ) -> VariantEstimate:
+        """``estimate`` of ``previous``'s bank moved onto this bank's slots.
+
+        A mode both banks hold keeps its filter and its probability; a mode new to this bank
+        starts from the filter of this bank's base mode (which the previous bank held: a
+        re-base changes the declared set by one channel) at its prior probability.
+        """
+        bank = estimate.filter
+        held = {mode: j for j, mode in enumerate(previous.modes)}
+        base = held.get(self.modes[0], bank.most_likely_mode)
+        prior = self.prior_probabilities()
+        source = [held.get(mode, base) for mode in self.modes]
+        probs = np.array(
+            [
+                bank.mode_probabilities[held[mode]] if mode in held else prior[k]
+                for k, mode in enumerate(self.modes)
+            ]
+        )
+        probs = probs / probs.sum()
+        r = len(self.modes)
+        moved = dataclasses.replace(
+            bank,
+            mode_probabilities=probs,
+            log_mode_probabilities=np.log(probs),
+            mode_means=bank.mode_means[source].copy(),
+            mode_covs=bank.mode_covs[source].copy(),
+            log_likelihoods=np.zeros(r),
+            innovations=None,
+            nis=np.zeros(r),
+            updated=False,
+            innovation_var=None,
+        )
+        return dataclasses.replace(estimate, filter=self.dynamics.settled_offsets(moved))
 
     def prior_probabilities(self) -> np.ndarray:
         """The filter model's start-up odds over the bank's modes."""
@@ -281,11 +340,14 @@ class AircraftEstimator(_Bank):
         bank = estimate.filter
         if bank.innovations is None or bank.innovation_var is None:
             return None
-        var = bank.innovation_var[:, :6]
+        nu, var = bank.innovations[:, :6], bank.innovation_var[:, :6]
         width = self.imu_model.mode_noise_var
         if width is not None:
             var = var - width[:, :6]
-        return bank.innovations[:, :6], np.maximum(var, np.finfo(float).tiny)
+        offset = self.dynamics.offset
+        if offset is not None:  # a newly failed channel: its offset, the rest's disagreement
+            nu, var = offset.residuals(bank.mode_means, bank.mode_covs, nu, var)
+        return nu, np.maximum(var, np.finfo(float).tiny)
 
     def initial_estimate(
         self,
@@ -323,7 +385,7 @@ class AircraftEstimator(_Bank):
         controls = np.asarray(controls, dtype=float)
         pair = np.array([previous.controls, controls])  # u(k), u(k+1)
         bank, air = self.dynamics.step(
-            self.imm, previous.filter, previous.turbulence, t_next_s, pair, z
+            self.imm, previous.filter, previous.turbulence, t_next_s, pair, z, previous.imu
         )
         return VariantEstimate(t_next_s, bank, controls, imu, air)  # the IMU drives nothing here
 
@@ -356,17 +418,19 @@ def build_aero_estimator(
     noise_form: NoiseForm = "augmented",
     kappa: float = 0.0,
     compiled: bool = True,
+    declared: FaultMode | None = None,
 ) -> AircraftEstimator:
     """UKF-1 (``"ukf1"``, needs ``true_mode``), UKF-2 (``"ukf2"``) or UKF-4 (``"imm"``).
 
-    ``filter_model`` defaults to the paper's (:class:`PaperModel`). ``compiled`` selects how the
-    filter's kernels run (False: the same functions uncompiled, see
+    ``filter_model`` defaults to the paper's (:class:`PaperModel`). The IMM's bank is based on
+    ``declared`` (:func:`bank_modes`; nothing declared: the paper's seven modes). ``compiled``
+    selects how the filter's kernels run (False: the same functions uncompiled, see
     :class:`UnscentedKalmanFilter`); the aircraft model's is chosen when ``model`` is built.
     """
     sensors = sensors if sensors is not None else SensorSpec()
     filter_model = filter_model if filter_model is not None else PaperModel()
     if variant == "imm":
-        modes = single_fault_modes()
+        modes = bank_modes(declared)
     elif variant == "ukf1":
         if true_mode is None:
             raise ValueError("UKF-1 is matched to the true mode: pass true_mode")
@@ -379,13 +443,25 @@ def build_aero_estimator(
     ukf = UnscentedKalmanFilter(
         dynamics.process, dynamics.sigma_points(kappa), noise_form, compiled
     )
+    return _assemble(variant, modes, ukf, dynamics, filter_model, sensors)
+
+
+def _assemble(
+    variant: str,
+    modes: Sequence[FaultMode],
+    ukf: UnscentedKalmanFilter,
+    dynamics: ModelDynamics,
+    filter_model: FilterModel,
+    sensors: SensorSpec,
+) -> AircraftEstimator:
+    """The bank of ``ukf`` over ``modes``: its chain (eq. 3), evidence and output models."""
     floor = filter_model.probability_floor if len(modes) > 1 else 0.0
     imm = ImmEstimator(ukf, filter_model.transition(modes), floor, dynamics.gate())
     imu_model, imu_gps_model = aero_measurement_models(
-        dynamics.flown, modes, sensors, filter_model.fault_signature
+        dynamics.flown, modes, sensors, filter_model.fault_signature, dynamics.offset
     )
     return AircraftEstimator(
-        variant, tuple(modes), imm, imu_model, imu_gps_model, filter_model, dynamics
+        variant, tuple(modes), imm, imu_model, imu_gps_model, filter_model, dynamics, sensors
     )
 
 
@@ -493,8 +569,12 @@ def build_estimator(
     true_mode: FaultMode | None = None,
     sensors: SensorSpec | None = None,
     filter_model: FilterModel | None = None,
+    declared: FaultMode | None = None,
 ) -> Estimator:
-    """Any of the paper's four variants (``ukf1``, ``ukf2``, ``ukf3``, ``imm``) about ``origin``."""
+    """Any of the paper's four variants (``ukf1``, ``ukf2``, ``ukf3``, ``imm``) about ``origin``.
+
+    ``declared``: what the IMM's bank is based on (:func:`bank_modes`).
+    """
     if variant not in VARIANTS:
         raise ValueError(f"unknown variant {variant!r}: expected one of {', '.join(VARIANTS)}")
     if variant == "ukf3":
@@ -505,4 +585,5 @@ def build_estimator(
         true_mode=true_mode,
         sensors=sensors,
         filter_model=filter_model,
+        declared=declared,
     )

@@ -31,16 +31,18 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from immukf_sitl.estimation.fault_modes import FaultMode
+from immukf_sitl.estimation.fault_modes import FaultMode, failure_marginals
 from immukf_sitl.models.earth import LocalGeodetic, NedOrigin
 from immukf_sitl.models.params import AircraftParams
 from immukf_sitl.models.sensors import IMU_PERIOD_S, SensorSpec
 from immukf_sitl.samples import ActuatorSample, GpsSample, ImuSample
 from immukf_sitl.service.alignment import NavSolution, align
+from immukf_sitl.service.declared_set import DeclaredSetDetector
 from immukf_sitl.service.detection import DetectionEvent, DetectorConfig, FaultDetector
 from immukf_sitl.service.fault_naming import FaultNamer
 from immukf_sitl.service.filter_models import FilterModel, PaperModel
 from immukf_sitl.service.filters import (
+    AircraftEstimator,
     Estimator,
     Observation,
     VariantEstimate,
@@ -149,7 +151,7 @@ class EstimatorPipeline:
         self.origin: NedOrigin | None = None
         self.estimator: Estimator | None = None
         self.estimate: VariantEstimate | None = None
-        self.detector: FaultDetector | None = None
+        self.detector: FaultDetector | DeclaredSetDetector | None = None
         self._namer = FaultNamer(self.config.sensors.imu.sigmas)
         self._controls: np.ndarray | None = None
         self._gps_queue: deque[GpsSample] = deque(maxlen=16)
@@ -327,12 +329,13 @@ class EstimatorPipeline:
     def _align(self, t_s: float, imu: np.ndarray, gps: np.ndarray) -> None:
         assert self.origin is not None and self._controls is not None
         cfg = self.config
-        estimator = build_estimator(
-            cfg.variant, self.params, self.origin, cfg.true_mode, cfg.sensors, cfg.filter_model
-        )
         # a re-alignment keeps what the detector declared: the failed channel is not trusted
-        # by the alignment, and the bank starts believing it
+        # by the alignment, and the bank starts believing it (a re-basing bank: based on it)
         declared = self.detector.declared if self.detector is not None else None
+        estimator = build_estimator(
+            cfg.variant, self.params, self.origin, cfg.true_mode, cfg.sensors, cfg.filter_model,
+            declared if self.rebases else None,
+        )  # fmt: skip
         failed = declared.channels if declared is not None else ()
         # the alignment sample itself is the first step's measurement: start one period earlier
         nav = align(t_s - IMU_PERIOD_S, imu, gps, failed)
@@ -341,8 +344,10 @@ class EstimatorPipeline:
         self._nav = None
         self.estimator = estimator
         if self.detector is None:
-            self.detector = FaultDetector(
-                estimator.modes, cfg.detector, t_s, estimator.fault_signature
+            self.detector = (
+                DeclaredSetDetector(cfg.detector, t_s)
+                if self.rebases
+                else FaultDetector(estimator.modes, cfg.detector, t_s)
             )
         else:
             self.detector.start_s = t_s  # settle again; what was declared stays declared
@@ -359,36 +364,61 @@ class EstimatorPipeline:
                 self.estimate, previous_s + k * IMU_PERIOD_S, self._controls, nothing
             )
 
-    def _decide(self, t_s: float, est: VariantEstimate, imu: np.ndarray) -> list[DetectionEvent]:
-        """The detector's events at this step, and the naming of a declared failure when due.
+    @property
+    def rebases(self) -> bool:
+        """Whether the bank re-bases on each declaration (the untrusted modes' IMM).
 
-        An untrusted mode's declaration is named (:mod:`immukf_sitl.service.fault_naming`)
-        from the readings of the window after it; a zero mode's failure is the zero its
-        declaration tested.
+        The paper's zero modes keep its fixed bank of seven single faults, so that its study
+        reproduces; untrusted modes declare and release channels one at a time over the bank
+        about the declared set (:mod:`immukf_sitl.service.declared_set`).
+        """
+        cfg = self.config
+        return cfg.variant == "imm" and cfg.filter_model.fault_signature == "untrusted"
+
+    def _decide(self, t_s: float, est: VariantEstimate, imu: np.ndarray) -> list[DetectionEvent]:
+        """The detector's events at this step, the namings that fell due, and the re-base.
+
+        An untrusted declaration is named (:mod:`immukf_sitl.service.fault_naming`) from the
+        readings of the window after it, by the base filter that no longer trusts the channel;
+        a zero mode's failure is the zero its declaration tested. A declaration or release of
+        the re-basing detector moves the bank onto the new declared set.
         """
         assert self.estimator is not None and self.detector is not None
         innovations = self.estimator.channel_innovations(est)
-        residuals = None if innovations is None else innovations[0] ** 2 / innovations[1]
+        sigmas = self.config.sensors.imu.sigmas
         events = self.detector.update(
-            t_s, est.mode_probabilities, imu, self.config.sensors.imu.sigmas, residuals
+            t_s, est.mode_probabilities, imu, sigmas, innovations, est.filter.failure_weights
         )
-        named = None
-        if innovations is not None:
-            named = self._namer.observe(t_s, imu, *innovations)
+        names = [] if innovations is None else self._namer.observe(t_s, imu, *innovations)
         for k, event in enumerate(events):
+            channel = int(np.flatnonzero(event.mode.healthy_mask == 0.0)[0])
             if event.kind == "cleared":
-                self._namer.cancel()
-            elif event.kind == "detected" and self.detector.signature == "zero":
+                self._namer.cancel(channel)
+            elif event.kind == "detected" and not self.rebases:
                 events[k] = dataclasses.replace(event, failure="zero")  # what the test showed
             elif event.kind == "detected":
-                j = self.estimator.modes.index(event.mode)
-                channel = int(np.flatnonzero(event.mode.healthy_mask == 0.0)[0])
-                self._namer.declared(j, channel, t_s)
-        declared = self.detector.declared
-        if named is not None and declared is not None:
-            p = float(est.mode_probabilities[self.estimator.modes.index(declared)])
-            events.append(DetectionEvent("named", declared, t_s, p, named.kind, named.size))
+                self._namer.declared(0, channel, t_s)  # the re-based bank's base distrusts it
+        marginals = failure_marginals(self.estimator.modes, est.mode_probabilities)
+        for channel, name in names:
+            if isinstance(self.detector, DeclaredSetDetector):
+                self.detector.named(channel, name.kind, name.size, t_s)
+            p = float(marginals[1 + channel])  # the belief that the channel failed
+            events.append(
+                DetectionEvent("named", FaultMode(1 << channel), t_s, p, name.kind, name.size)
+            )
+        if isinstance(self.detector, DeclaredSetDetector) and any(
+            e.kind in ("detected", "cleared") for e in events
+        ):
+            self._rebase()
         return events
+
+    def _rebase(self) -> None:
+        """Move the bank and its estimate onto the detector's declared set."""
+        assert isinstance(self.estimator, AircraftEstimator) and self.estimate is not None
+        assert self.detector is not None
+        rebased = self.estimator.rebased(self.detector.declared)
+        self.estimate = rebased.carried_over(self.estimate, self.estimator)
+        self.estimator = rebased
 
     def _step(self, t_s: float, imu: np.ndarray, gps: np.ndarray | None) -> EstimateOutput:
         assert self.estimator is not None and self.detector is not None
@@ -411,6 +441,7 @@ class EstimatorPipeline:
         self._nav = nav
         north, east, down = (float(c) for c in nav.position_ned_m)
         lat, lon, alt = self._frame().to_geodetic(north, east, down)
+        modes = self.estimator.modes  # a decision may re-base the bank for the next step
         stale = self._actuator_s is None or t_s - self._actuator_s > self.config.actuator_timeout_s
         if stale:
             # the model's controls are old: its predictions (and so the modes' odds) are not
@@ -425,7 +456,7 @@ class EstimatorPipeline:
             lat,
             lon,
             alt,
-            self.estimator.modes,
+            modes,
             est.mode_probabilities,
             tuple(events),
             step_us,

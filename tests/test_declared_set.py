@@ -1,0 +1,152 @@
+"""Declarations and releases over a bank re-based on the declared set (untrusted modes)."""
+
+import math
+
+import numpy as np
+import pytest
+
+from immukf_sitl.estimation import FaultMode, bank_modes
+from immukf_sitl.service.declared_set import DeclaredSetDetector, NamedFailure, failed_reading
+from immukf_sitl.service.detection import DetectorConfig
+
+SIGMAS = np.array([0.0245] * 3 + [0.00227] * 3)
+Q, X = 4, 0  # channel indices
+VAR = np.tile(SIGMAS**2 * 4.0, (7, 1))  # each slot's prediction: 2 noise sigmas wide
+
+
+def _probs(slot: int, p: float) -> np.ndarray:
+    """``p`` on ``slot``, the rest on the base slot 0."""
+    out = np.zeros(7)
+    out[slot] = p
+    out[0] += 1.0 - p
+    return out
+
+
+def _innovations(rng, off_sigmas: dict[tuple[int, int], float] | None = None):
+    """Each slot's residual of each channel: N(0, VAR), some ``(slot, channel)`` moved off."""
+    nu = rng.normal(0.0, 1.0, (7, 6)) * np.sqrt(VAR)
+    for (j, i), k in (off_sigmas or {}).items():
+        nu[j, i] += k * np.sqrt(VAR[j, i])
+    return nu, VAR.copy()
+
+
+def _imu(rng, q_radps: float = 0.05) -> np.ndarray:
+    return np.array([0.5, 0.5, -9.8, 0.05, q_radps, 0.05]) + rng.normal(0.0, SIGMAS)
+
+
+def test_a_channel_is_declared_only_while_it_disagrees_with_the_others():
+    """Slot q at 0.99 on readings that agree with its prediction (a model error elsewhere) and
+    do not read zero is not declared; once q sits 3 sigma off its prediction, it is."""
+    rng = np.random.default_rng(12)
+    det = DeclaredSetDetector(DetectorConfig(dwell_s=0.1, settle_s=0.0), 0.0)
+    events = []
+    for k in range(100):
+        events += det.update(k * 0.01, _probs(5, 0.99), _imu(rng), SIGMAS, _innovations(rng))
+    assert events == []
+    for k in range(100, 200):
+        nu = _innovations(rng, {(5, Q): 3.0})
+        events += det.update(k * 0.01, _probs(5, 0.99), _imu(rng), SIGMAS, nu)
+    assert [(e.kind, e.mode.name, e.declared_after.name) for e in events] == [
+        ("detected", "q", "q")
+    ]
+    # 20 samples at 3 sigma: the window's sum ~ 20 * (1 + 9) = 200 against 45.3
+    assert 1.0 <= events[0].t_s <= 1.19
+    assert det.declared == FaultMode.from_name("q")
+    assert det.modes == bank_modes(FaultMode.from_name("q"))
+
+
+def test_a_second_failure_is_declared_beside_the_first():
+    """With q declared, the slot q+x at 0.99 and the x accelerometer reading zero declares x
+    too: the first declaration masks nothing."""
+    rng = np.random.default_rng(4)
+    det = DeclaredSetDetector(DetectorConfig(dwell_s=0.0, settle_s=0.0), 0.0, FaultMode(1 << Q))
+    dead_x = _imu(rng)
+    dead_x[X] = rng.normal(0.0, SIGMAS[X])
+    events = []
+    for k in range(25):
+        reading = _imu(rng)
+        reading[X] = rng.normal(0.0, SIGMAS[X])
+        events += det.update(k * 0.01, _probs(1, 0.99), reading, SIGMAS, _innovations(rng))
+    assert [(e.kind, e.mode.name, e.declared_after.name) for e in events] == [
+        ("detected", "x", "x+q")
+    ]
+    assert det.modes[0] == FaultMode.from_name("x+q")
+
+
+def test_a_release_needs_life_relative_to_the_named_failure():
+    """q declared and named stuck at 0.05 rad/s: readings that agree with a prediction near the
+    held value are no life, whatever the release slot's probability; readings that agree while
+    the prediction is far from it are, and after the clear dwell the channel is released."""
+    rng = np.random.default_rng(8)
+    cfg = DetectorConfig(dwell_s=0.0, settle_s=0.0, clear_dwell_s=0.5)
+    det = DeclaredSetDetector(cfg, 0.0, FaultMode(1 << Q))
+    det.named(Q, "stuck", 0.05, 0.0)
+    release = 1 + Q  # slot D - q
+    events = []
+    for k in range(200):  # the aircraft holds q = 0.05: the stuck value agrees, but proves nothing
+        events += det.update(k * 0.01, _probs(release, 0.99), _imu(rng), SIGMAS, _innovations(rng))
+    assert events == []
+    for k in range(200, 300):  # a pull-up: q = 0.3, read and predicted alike
+        nu = _innovations(rng)
+        events += det.update(k * 0.01, _probs(release, 0.99), _imu(rng, 0.3), SIGMAS, nu)
+    assert [(e.kind, e.mode.name) for e in events] == [("cleared", "q")]
+    assert events[0].declared_after == FaultMode(0)
+    assert det.declared is None and det.modes == bank_modes(None)
+
+
+def test_life_decays():
+    """Three readings of life long ago count for less than three now: no release on them."""
+    rng = np.random.default_rng(9)
+    cfg = DetectorConfig(dwell_s=0.0, settle_s=0.0, clear_dwell_s=0.5)
+    det = DeclaredSetDetector(cfg, 0.0, FaultMode(1 << Q))
+    det.named(Q, "zero", None, 0.0)
+    events = []
+    for k in range(3):  # life, while the release slot is not yet believed
+        events += det.update(k * 0.01, _probs(0, 1.0), _imu(rng, 0.3), SIGMAS, _innovations(rng))
+    for k in range(3, 400):  # then a believed release on a q that reads zero-like values
+        reading = _imu(rng, 0.0)
+        events += det.update(k * 0.01, _probs(1 + Q, 0.99), reading, SIGMAS, _innovations(rng))
+    assert events == []
+    # with no decay the three would have released it: the count is what decays
+    assert det._life[Q] < 0.01
+
+
+def test_split_evidence_is_said_once_as_cannot_isolate():
+    rng = np.random.default_rng(10)
+    det = DeclaredSetDetector(DetectorConfig(dwell_s=0.1, settle_s=0.0), 0.0)
+    split = np.array([0.02, 0.49, 0.49, 0.0, 0.0, 0.0, 0.0])
+    events = []
+    for k in range(50):
+        events += det.update(k * 0.01, split, _imu(rng), SIGMAS, _innovations(rng))
+    assert [(e.kind, e.mode.name) for e in events] == [("unisolated", "x+y")]
+    assert events[0].text().startswith("IMM: cannot isolate fault: x or y")
+
+
+@pytest.mark.parametrize(
+    ("kind", "size", "prediction", "expected"),
+    [
+        ("zero", None, 0.3, 0.0),
+        ("stuck", 0.05, 0.3, 0.05),
+        ("bias", 0.1, 0.3, 0.4),
+        ("scale", 0.5, 0.3, 0.15),
+        ("noise", 3.0, 0.3, None),
+        ("drift", 0.01, 0.3, None),
+    ],
+)
+def test_what_a_named_failure_would_read(kind, size, prediction, expected):
+    got = failed_reading(NamedFailure(kind, size, 0.0), prediction)
+    assert got == (None if expected is None else pytest.approx(expected))
+
+
+def test_no_life_before_the_failure_is_named():
+    """Agreement says nothing until it is known what the failure would read."""
+    assert math.isnan(failed_reading(NamedFailure(None, None, 0.0), 0.3))
+    rng = np.random.default_rng(2)
+    cfg = DetectorConfig(dwell_s=0.0, settle_s=0.0, clear_dwell_s=0.1)
+    det = DeclaredSetDetector(cfg, 0.0, FaultMode(1 << Q))
+    events = []
+    for k in range(100):
+        events += det.update(
+            k * 0.01, _probs(1 + Q, 0.99), _imu(rng, 0.3), SIGMAS, _innovations(rng)
+        )
+    assert events == [] and det._life[Q] == 0.0
