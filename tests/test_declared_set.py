@@ -1,12 +1,10 @@
 """Declarations and releases over a bank re-based on the declared set (untrusted modes)."""
 
-import math
-
 import numpy as np
 import pytest
 
 from immukf_sitl.estimation import FaultMode, bank_modes
-from immukf_sitl.service.declared_set import DeclaredSetDetector, NamedFailure, failed_reading
+from immukf_sitl.service.declared_set import DeclaredSetDetector, NamedFailure, shows_life
 from immukf_sitl.service.detection import DetectorConfig
 
 SIGMAS = np.array([0.0245] * 3 + [0.00227] * 3)
@@ -123,24 +121,23 @@ def test_split_evidence_is_said_once_as_cannot_isolate():
 
 
 @pytest.mark.parametrize(
-    ("kind", "size", "prediction", "expected"),
+    ("kind", "size", "reading", "expected"),
     [
-        ("zero", None, 0.3, 0.0),
-        ("stuck", 0.05, 0.3, 0.05),
-        ("bias", 0.1, 0.3, 0.4),
-        ("scale", 0.5, 0.3, 0.15),
-        ("noise", 3.0, 0.3, None),
-        ("drift", 0.01, 0.3, None),
+        ("zero", None, 0.3, True),
+        ("zero", None, 0.001, False),
+        ("stuck", 0.05, 0.3, True),
+        ("stuck", 0.05, 0.051, False),
+        ("bias", 0.1, 0.3, True),
+        ("noise", 3.0, 0.0, True),
+        (None, None, 0.3, False),
     ],
 )
-def test_what_a_named_failure_would_read(kind, size, prediction, expected):
-    got = failed_reading(NamedFailure(kind, size, 0.0), prediction)
-    assert got == (None if expected is None else pytest.approx(expected))
+def test_life_is_a_reading_the_named_failure_would_not_give(kind, size, reading, expected):
+    assert shows_life(NamedFailure(kind, size, 0.0), reading, SIGMAS[Q], 5.0) is expected
 
 
 def test_no_life_before_the_failure_is_named():
     """Agreement says nothing until it is known what the failure would read."""
-    assert math.isnan(failed_reading(NamedFailure(None, None, 0.0), 0.3))
     rng = np.random.default_rng(2)
     cfg = DetectorConfig(dwell_s=0.0, settle_s=0.0, clear_dwell_s=0.1)
     det = DeclaredSetDetector(cfg, 0.0, FaultMode(1 << Q))

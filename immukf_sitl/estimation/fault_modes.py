@@ -625,14 +625,20 @@ class DeadOrAnyEvidence:
         s0 = innovation_cov[reference, channels, channels]
         log_reference = _log_normal(nu0, s0)
         gate = self.n_sigma * np.sqrt(s0)
-        # observable: a dead sensor differs from this prediction (a NaN prediction is not)
-        observable = np.abs(own) > gate
+        # observable: a dead sensor differs from this prediction (a NaN prediction is not),
+        # or the reading is not what a dead one reads
+        observable = (np.abs(own) > gate) | (np.abs(reading) > self.n_sigma * np.sqrt(r))
         log_dead = np.where(observable, _log_normal(reading, r), log_reference)
         log_w_dead = np.where(observable, np.log(self.dead_weight), 0.0)
+        # likewise a stuck one: the truth should have moved, or the reading did
         held = np.full_like(reading, np.nan) if previous_z is None else previous_z[channels]
-        moved = np.isfinite(held) & (np.abs(own - held) > gate)
+        stuck_var = (STUCK_SIGMAS**2) * r
+        moved = np.isfinite(held) & (
+            (np.abs(own - held) > gate)
+            | (np.abs(reading - held) > self.n_sigma * np.sqrt(stuck_var))
+        )
         step = np.where(moved, reading - held, 0.0)
-        log_stuck = np.where(moved, _log_normal(step, (STUCK_SIGMAS**2) * r), log_reference)
+        log_stuck = np.where(moved, _log_normal(step, stuck_var), log_reference)
         return modes, log_any, (log_dead, log_w_dead), log_stuck, channels, (observable, moved)
 
     def prior_weights(self, r: int) -> np.ndarray | None:

@@ -14,15 +14,17 @@ channel's failure: the mode ``D + c`` is always in the bank.
   zero plus noise, or the offset the slot learnt for it is beyond its uncertainty (the
   chi-square quantile ``signature_quantile`` either way), or the slot has seen it read zero or
   hold still where it should have moved (its weights of dead and stuck at least the quantile).
-- **Release** channel ``c`` in ``D`` when slot ``D - c`` (the recovery) stays above
-  ``1 - clear_threshold`` for ``clear_dwell_s`` *and* the channel has shown life relative to the
-  way it was named to fail: at least ``alive_samples`` readings that agree with the base
-  filter's prediction of the channel (within 3 sigma) while the named failure would have read
-  more than ``alive_sigmas`` sigmas of that prediction away from it (a zero: the prediction
-  itself; stuck: the held value; a bias: the bias; a gain: ``(g - 1)`` times the prediction),
-  so that the reading tells the two apart. A sensor stuck near the true value agrees with it
-  for as long as the aircraft holds still, which is not life; where the prediction is loose (a
-  gyro in turbulence) a stuck or zeroed channel is rarely released. The count decays with
+- **Release** channel ``c`` in ``D`` when, for ``clear_dwell_s``, slot ``D - c`` (the
+  recovery) stays above ``1 - clear_threshold`` or the offset the base learnt for the channel
+  stays within its uncertainty of zero while known to ``alive_sigmas`` noise sigmas (a channel
+  read as healthy plus an offset of zero is a healthy one, which the probabilities alone tell
+  from the failed one only by the offset's uncertainty), *and* the channel has shown life
+  relative to the way it was named to fail. A failure defined by what the channel reads needs
+  at least ``alive_samples`` readings more than ``alive_sigmas`` noise sigmas away from that
+  (a zero: from zero; stuck: from the held value): a sensor stuck near the true value agrees
+  with the other sensors for as long as the aircraft holds still, which is not life. A failure
+  defined against the truth (bias, drift, gain, noise, spikes) shows its recovery in the
+  probabilities and the offset above. Not named yet, nothing shows life. The count decays with
   time constant ``clear_dwell_s``: life shown long ago says little of the sensor now.
 - **Cannot isolate**: when slot 0 stays below ``1 - threshold`` for ``dwell_s`` while no other
   slot reaches ``threshold`` (the evidence is split between channels), an ``unisolated`` event
@@ -37,12 +39,10 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.stats import chi2
 
 from immukf_sitl.estimation.fault_modes import IMU_CHANNELS, N_IMU, FaultMode, bank_modes
 from immukf_sitl.service.detection import DetectionEvent, DetectorConfig, SignatureWindow
-
-#: a reading within this many sigmas of the base filter's prediction agrees with it
-AGREE_SIGMAS = 3.0
 
 
 @dataclass(frozen=True)
@@ -54,26 +54,20 @@ class NamedFailure:
     t_s: float
 
 
-def failed_reading(failure: NamedFailure, prediction: float) -> float | None:
-    """What a channel failed as named would read when the healthy one reads ``prediction``.
+def shows_life(failure: NamedFailure, reading: float, noise_sigma: float, sigmas: float) -> bool:
+    """Whether ``reading`` is more than ``sigmas`` noise sigmas from what ``failure`` reads.
 
-    None where the kind has no reading model (noise, spikes, drift): its life is agreement
-    alone. Not named yet: NaN, no reading shows life (it is not known what to tell it from).
+    True for a failure defined against the truth (its recovery shows elsewhere), False while
+    the failure is not named.
     """
-    kind, size = failure.kind, failure.size
-    if kind is None:
-        return math.nan
-    if kind == "zero":
-        return 0.0
-    if size is None or not math.isfinite(size):
-        return None
-    if kind == "stuck":
-        return size
-    if kind == "bias":
-        return prediction + size
-    if kind == "scale":
-        return size * prediction
-    return None
+    if failure.kind is None or not math.isfinite(reading):
+        return False
+    if failure.kind == "zero":
+        return bool(abs(reading) > sigmas * noise_sigma)
+    if failure.kind == "stuck":
+        held = failure.size if failure.size is not None else math.nan
+        return bool(abs(reading - held) > sigmas * noise_sigma)  # NaN held: no
+    return True
 
 
 class DeclaredSetDetector:
@@ -103,6 +97,8 @@ class DeclaredSetDetector:
         self._window = SignatureWindow(config)
         self._life: dict[int, float] = {}  # declared channel -> decayed count of life
         self._failure: dict[int, NamedFailure] = {}
+        self._zero_offset_since: dict[int, float] = {}  # declared channel -> reads healthy since
+        self._consistent = float(chi2.ppf(config.signature_quantile, 1))
         for channel in range(N_IMU):
             if self._bits >> channel & 1:
                 self._start_latch(channel)
@@ -128,6 +124,7 @@ class DeclaredSetDetector:
         self._window.forget_residuals()
         self._life.pop(channel, None)
         self._failure.pop(channel, None)
+        self._zero_offset_since.pop(channel, None)
         if self._bits >> channel & 1:
             self._start_latch(channel)
 
@@ -147,21 +144,20 @@ class DeclaredSetDetector:
         imu_sigmas: np.ndarray,
         innovations: tuple[np.ndarray, np.ndarray],
     ) -> None:
-        """Decay every declared channel's life and count this reading if it shows it."""
+        """Decay each declared channel's life, count this reading's; note a known zero offset."""
+        cfg = self.config
         dt = 0.0 if self._last_t_s is None else max(t_s - self._last_t_s, 0.0)
-        decay = math.exp(-dt / self.config.clear_dwell_s) if self.config.clear_dwell_s else 0.0
+        decay = math.exp(-dt / cfg.clear_dwell_s) if cfg.clear_dwell_s else 0.0
         nu, var = innovations
         for channel in list(self._life):
-            z = float(imu[channel])
-            life = self._life[channel] * decay
-            if math.isfinite(z):
-                prediction = z - float(nu[0, channel])
-                agrees = abs(nu[0, channel]) <= AGREE_SIGMAS * math.sqrt(var[0, channel])
-                failed = failed_reading(self._failure[channel], prediction)
-                apart = self.config.alive_sigmas * math.sqrt(var[0, channel])
-                if agrees and (failed is None or abs(prediction - failed) > apart):  # NaN: no
-                    life += 1.0
-            self._life[channel] = life
+            sigma = float(imu_sigmas[channel])
+            known = var[0, channel] <= (cfg.alive_sigmas * sigma) ** 2
+            if known and nu[0, channel] ** 2 <= self._consistent * var[0, channel]:
+                self._zero_offset_since.setdefault(channel, t_s)
+            else:
+                self._zero_offset_since.pop(channel, None)
+            alive = shows_life(self._failure[channel], float(imu[channel]), sigma, cfg.alive_sigmas)
+            self._life[channel] = self._life[channel] * decay + float(alive)
 
     def update(
         self,
@@ -198,10 +194,13 @@ class DeclaredSetDetector:
                 self._since.setdefault(j, t_s)
             else:
                 self._since.pop(j, None)
-        for j, since in sorted(self._since.items(), key=lambda kv: -probabilities[kv[0]]):
-            channel = j - 1
+        for channel in range(N_IMU):
             if not self._bits >> channel & 1:
                 continue
+            j = 1 + channel
+            since = min(
+                self._since.get(j, math.inf), self._zero_offset_since.get(channel, math.inf)
+            )
             alive = imu_sigmas is None or self._life.get(channel, 0.0) >= cfg.alive_samples
             if t_s - since >= cfg.clear_dwell_s and alive:
                 mode = FaultMode(1 << channel)

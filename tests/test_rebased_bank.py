@@ -1,0 +1,200 @@
+"""The bank about a declared set: its modes, chain, references, offsets and failure weights,
+each against a direct computation."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.stats import norm
+
+from immukf_sitl.estimation import (
+    ChannelOffset,
+    DeadOrAnyEvidence,
+    FaultMode,
+    bank_modes,
+    failure_marginals,
+    fault_mode_noise_var,
+    single_fault_modes,
+)
+from immukf_sitl.estimation.fault_modes import (
+    FAILURE_PRIOR,
+    FAILURE_WEIGHT_FLOOR,
+    OFFSET_PRIOR_VAR,
+    STUCK_SIGMAS,
+    reference_slots,
+)
+from immukf_sitl.models.earth import NedOrigin
+from immukf_sitl.models.params import load_aircraft_params
+from immukf_sitl.models.sensors import ImuSpec
+from immukf_sitl.service.filter_models import PaperModel, RealAirModel
+from immukf_sitl.service.filters import build_estimator
+
+P = FaultMode.from_name("p")
+
+
+def test_the_bank_about_nothing_is_the_papers():
+    assert bank_modes() == single_fault_modes()
+    assert bank_modes(FaultMode(0)) == single_fault_modes()
+
+
+def test_the_bank_about_a_declared_set_changes_one_channel_a_slot():
+    modes = bank_modes(P)
+    assert [m.name for m in modes] == ["p", "x+p", "y+p", "z+p", "none", "p+q", "p+r"]
+    # each slot trusts its changed channel in its reference: the slot without that channel
+    ref = reference_slots(modes)
+    pairs = [(j, i) for j, m in enumerate(modes) for i in range(6) if m.bits >> i & 1]
+    for (j, i), k in zip(pairs, ref, strict=True):
+        assert not modes[k].bits >> i & 1
+        target = modes[j].bits & ~(1 << i)
+        if target in [m.bits for m in modes]:
+            assert modes[k].bits == target
+    np.testing.assert_array_equal(reference_slots(single_fault_modes()), np.zeros(6))
+
+
+def test_failure_marginals_sum_the_modes_that_hold_each_channel():
+    modes = bank_modes(P)
+    probs = np.array([0.6, 0.05, 0.05, 0.05, 0.1, 0.1, 0.05])
+    got = failure_marginals(modes, probs)
+    assert got[0] == pytest.approx(0.1)  # only "none" has no failure
+    assert got[4] == pytest.approx(0.9)  # p: every slot but "none"
+    assert got[5] == pytest.approx(0.1)  # q: "p+q"
+    single = np.array([0.4, 0.1, 0.1, 0.1, 0.1, 0.1, 0.1])
+    np.testing.assert_allclose(failure_marginals(single_fault_modes(), single), single)
+
+
+@pytest.mark.parametrize("model", [PaperModel(), RealAirModel()])
+@pytest.mark.parametrize("declared", [None, P, FaultMode.from_name("x+q")])
+def test_the_chain_hubs_on_the_base_slot(model, declared):
+    modes = bank_modes(declared)
+    t = model.transition(modes)
+    np.testing.assert_allclose(t.sum(axis=1), 1.0)
+    eps, delta = model.onset_probability, model.recovery_probability
+    np.testing.assert_allclose(t[0, 1:], eps)
+    np.testing.assert_allclose(t[1:, 0], delta)
+    prior = model.prior_probabilities(modes, t)
+    assert np.argmax(prior) == 0 and prior.sum() == pytest.approx(1.0)
+
+
+def test_an_offset_is_read_on_failed_channels_only_and_trusted_ones_rest_at_prior():
+    modes = bank_modes(P)
+    ranges = ImuSpec().ranges
+    offset = ChannelOffset(modes, ranges, index=3, walk_var=1e-9)
+    rng = np.random.default_rng(1)
+    x = rng.normal(0.0, 0.1, (9, 7, 5))
+    added = offset.output(x)
+    for j, mode in enumerate(modes):
+        for i in range(6):
+            expected = ranges[i] * x[3 + i, j] if mode.bits >> i & 1 else 0.0
+            np.testing.assert_allclose(added[i, j], expected)
+    means = rng.normal(0.0, 0.1, (7, 9))
+    covs = np.tile(np.eye(9) * 0.01, (7, 1, 1))
+    m2, c2 = offset.reset(means, covs)
+    for j, mode in enumerate(modes):
+        for i in range(6):
+            row = 3 + i
+            if mode.bits >> i & 1:
+                assert m2[j, row] == means[j, row] and c2[j, row, row] == 0.01
+            else:
+                assert m2[j, row] == 0.0 and c2[j, row, row] == OFFSET_PRIOR_VAR
+                assert not np.any(c2[j, row, :row]) and not np.any(c2[j, :row, row])
+
+
+def _evidence(modes):
+    imu = ImuSpec()
+    offset = ChannelOffset(modes, imu.ranges, index=0, walk_var=1e-9)
+    width = fault_mode_noise_var(modes, "untrusted", imu.ranges)
+    return DeadOrAnyEvidence(modes, imu.sigmas**2, width, offset=offset), imu
+
+
+def test_failure_weights_are_the_bayes_posterior_of_dead_stuck_and_offset():
+    """One step against a direct computation: the channel's factor is the predictive mixture
+    of the three ways to fail at the mode's weights, and the weights become its posterior."""
+    modes = single_fault_modes()
+    evidence, imu = _evidence(modes)
+    q, slot = 4, 5
+    z = np.array([0.0, 0.0, -9.8, 0.0, 0.0, 0.0])
+    z[q] = 0.03  # the q reading
+    previous = z.copy()
+    previous[q] = 0.03 + 0.1 * imu.sigmas[q]  # it moved a tenth of a sigma: stuck-like
+    nu = np.zeros((7, 6))
+    cov = np.tile(np.diag(imu.sigmas**2 * 4.0), (7, 1, 1))
+    nu[0, q] = z[q] - 0.2  # the fault-free mode predicts 0.2 rad/s
+    nu[slot, q] = 0.01  # the q mode's offset explains the reading to 0.01
+    mean = np.zeros((7, 6))  # offsets (the evidence's index 0): the q mode's learnt one
+    mean[slot, q] = -0.17 / imu.ranges[q]
+    weights = np.tile(np.array([0.2, 0.3, 0.5]), (7, 6, 1))
+    base = np.zeros(7)
+    got, updated = evidence.score(0.0, mean, nu, cov, z, None, base, weights, previous, None)
+    r = imu.sigmas[q] ** 2
+    s = cov[slot, q, q]
+    dead = norm.logpdf(z[q], 0.0, math.sqrt(r))  # seen: the prediction is far from zero
+    stuck = norm.logpdf(z[q] - previous[q], 0.0, STUCK_SIGMAS * math.sqrt(r))
+    off = norm.logpdf(nu[slot, q], 0.0, math.sqrt(s))
+    joint = np.log([0.2, 0.3, 0.5]) + [dead, stuck, off]
+    predictive = np.logaddexp.reduce(joint)
+    assert got[slot] == pytest.approx(predictive - off, abs=1e-9)
+    posterior = np.maximum(np.exp(joint - predictive), FAILURE_WEIGHT_FLOOR)
+    np.testing.assert_allclose(updated[slot, q], posterior / posterior.sum(), atol=1e-12)
+    assert updated[slot, q, 1] > 0.98  # a reading that held still where it should have moved
+    np.testing.assert_array_equal(updated[0], weights[0])  # the fault-free mode: untouched
+
+
+def test_settled_weights_cost_a_mode_nothing_where_a_fresh_mixture_costs_ln_2():
+    modes = single_fault_modes()
+    evidence, imu = _evidence(modes)
+    rng = np.random.default_rng(3)
+    cov = np.tile(np.diag(imu.sigmas**2 * 4.0), (7, 1, 1))
+    weights = np.tile(FAILURE_PRIOR, (7, 6, 1))
+    z = np.array([0.3, 0.1, -9.8, 0.2, 0.3, 0.1])
+    costs = []
+    for _ in range(50):  # an offset-like channel: readings the offset explains, far from 0
+        z = z + rng.normal(0.0, 0.2, 6)
+        nu = rng.normal(0.0, 1.0, (7, 6)) * np.sqrt(np.diagonal(cov, axis1=1, axis2=2))
+        previous = z + 0.5  # it moves
+        got, weights = evidence.score(
+            0.0, np.zeros((7, 6)), nu, cov, z, None, np.zeros(7), weights, previous, None
+        )
+        costs.append(got[5])
+    assert costs[0] == pytest.approx(math.log(1 / 3), abs=0.01)  # the prior's price, once
+    assert abs(costs[-1]) < 10 * FAILURE_WEIGHT_FLOOR  # then nothing
+    assert weights[5, 4, 2] > 0.999
+    static = evidence(0.0, np.zeros((7, 6)), nu, cov, z, None, np.zeros(7))
+    assert static[5] == pytest.approx(math.log(0.5), abs=1e-3)  # drawn anew: ln 2 a step
+
+
+@pytest.mark.parametrize("name", ["paper", "real-air"])
+def test_a_rebased_bank_carries_each_held_mode_over(name):
+    model = (PaperModel if name == "paper" else RealAirModel)(fault_signature="untrusted")
+    params = load_aircraft_params()
+    origin = NedOrigin(47.4, 8.5, 150.0)
+    bank = build_estimator("imm", params, origin, filter_model=model)
+    assert bank.modes == single_fault_modes()
+    n = bank.imm.ukf.process.nx
+    rng = np.random.default_rng(5)
+    means = rng.normal(0.0, 0.01, (7, n))
+    covs = np.tile(np.eye(n) * 1e-4, (7, 1, 1))
+    probs = np.array([0.04, 0.01, 0.01, 0.01, 0.9, 0.02, 0.01])
+    start = bank.imm.initial_estimate(0.0, means[0], covs[0], probs)
+    import dataclasses
+
+    from immukf_sitl.service.filters import VariantEstimate
+
+    filt = dataclasses.replace(start, mode_means=means, mode_covs=covs)
+    est = VariantEstimate(0.0, filt, np.zeros(4), np.zeros(6))
+    rebased = bank.rebased(P)
+    moved = rebased.carried_over(est, bank).filter
+    assert rebased.modes == bank_modes(P)
+    # "p" was slot 4 and is now the base; "none" was the base and is now slot 4
+    np.testing.assert_allclose(moved.mode_means[0, :12], means[4, :12])
+    np.testing.assert_allclose(moved.mode_means[4, :12], means[0, :12])
+    assert moved.mode_probabilities[0] / moved.mode_probabilities[4] == pytest.approx(0.9 / 0.04)
+    # the modes new to the bank start from the base's filter, at the prior
+    np.testing.assert_allclose(moved.mode_means[5, :12], means[4, :12])
+    offset = rebased.dynamics.offset
+    for j, mode in enumerate(rebased.modes):
+        for i in range(6):
+            if not mode.bits >> i & 1:
+                assert moved.mode_means[j, offset.index + i] == 0.0
+                assert moved.mode_covs[j, offset.index + i, offset.index + i] == OFFSET_PRIOR_VAR
