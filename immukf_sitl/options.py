@@ -192,9 +192,10 @@ class FilterOptions:
             choices=FAULT_SIGNATURES,
             default="zero",
             help="what a fault mode predicts on its failed channel: zero (the paper's zero plus "
-            "noise; default) or untrusted (anything in the sensor's range, so zeroed, stuck, "
-            "biased, drifting, scaled and noisy sensors all fit, and the failure is named; "
-            "docs/design/detection-and-tuning.md)",
+            "noise and its fixed bank of single faults; default) or untrusted (dead, stuck, or "
+            "healthy plus a learnt offset anywhere in the sensor's range; the bank re-bases on "
+            "each declaration, so further faults are found beside it, and each failure is "
+            "named; docs/design/detection-and-tuning.md)",
         )
         for flag, record, attribute, text in cls._NUMERIC:
             default = getattr(defaults[record], attribute)

@@ -107,3 +107,27 @@ def test_naming_words_fit_a_statustext_for_every_kind() -> None:
         for mode in MODES[1:]:
             text = DetectionEvent("named", mode, 1.0, 0.99, kind, size).text()
             assert len(text) <= 50 and text.endswith("p=0.99"), text
+
+
+def test_a_rebased_bank_publishes_the_probability_that_each_channel_failed() -> None:
+    """With p declared the bank's slots are p, x+p, ...: MP_P is the sum over the slots that
+    hold p, MP_NONE the slot that holds nothing; the declared set rides on IMM_FAULT."""
+    from immukf_sitl.estimation import bank_modes
+
+    modes = bank_modes(FaultMode.from_name("p"))
+    probs = np.array([0.6, 0.05, 0.05, 0.05, 0.1, 0.1, 0.05])
+    nav = output(0.0).nav
+    x = FaultMode.from_name("x")
+    event = DetectionEvent("detected", x, 0.0, 0.97, declared_after=FaultMode.from_name("x+p"))
+    out = EstimateOutput(0.0, nav, 47.0, 8.0, 150.0, modes, probs, (event,), 100.0)
+    msgs = Publisher(OutputRates()).messages(out)
+    floats = {m.name: m.value for m in msgs if m.get_type() == "NAMED_VALUE_FLOAT"}
+    assert floats["MP_NONE"] == np.float32(0.1)
+    assert floats["MP_P"] == np.float32(0.9)
+    assert floats["MP_Q"] == np.float32(0.1) and floats["MP_AX"] == np.float32(0.05)
+    (fault,) = [m for m in msgs if m.get_type() == "NAMED_VALUE_INT"]
+    assert fault.name == FAULT_EVENT_NAME and fault.value == 1 + 8  # x and p
+    unisolated = DetectionEvent("unisolated", FaultMode.from_name("x+y"), 1.0, 0.95)
+    out = EstimateOutput(1.0, nav, 47.0, 8.0, 150.0, modes, probs, (unisolated,), 100.0)
+    kinds = [m.get_type() for m in Publisher(OutputRates()).messages(out)]
+    assert "STATUSTEXT" in kinds and "NAMED_VALUE_INT" not in kinds

@@ -117,3 +117,27 @@ def test_a_naming_lands_on_its_detection_in_the_json_and_the_text():
     ]
     assert s["faults"][0]["named_kind"] == "bias" and s["faults"][0]["named_size"] == 0.0492
     assert "q@1.20s (bias +0.0492), r@3.00s;" in human_summary(summary)
+
+
+def test_a_double_fault_is_detected_once_both_channels_are_declared_together():
+    """Declared one channel at a time by a re-based bank: the fault's detection is the event
+    that left both declared, and neither channel's declaration is a false alarm; a detector
+    that holds one mode at a time (the paper's) never covers both."""
+    truth = _truth(400, lambda t: 0.05)
+    fault = FaultSpec(1.0, ("x", "q"), "zero")
+    xq = FaultMode.from_name("x+q")
+    events = [
+        DetectionEvent("detected", FaultMode.from_name("q"), 1.2, 0.99,
+                       declared_after=FaultMode.from_name("q")),
+        DetectionEvent("detected", FaultMode.from_name("x"), 1.7, 0.98, declared_after=xq),
+    ]  # fmt: skip
+    s = summarize("t", [fault], truth, events, _track(truth), TimingStats(1.0, 1.0, 1.0))
+    (row,) = s.to_json()["faults"]
+    assert row["detected_t_s"] == pytest.approx(1.7) and s.false_alarms == ()
+    one_at_a_time = [
+        DetectionEvent("detected", FaultMode.from_name("q"), 1.2, 0.99),
+        DetectionEvent("cleared", FaultMode.from_name("q"), 1.7, 0.2),
+        DetectionEvent("detected", FaultMode.from_name("x"), 1.7, 0.98),
+    ]
+    s = summarize("t", [fault], truth, one_at_a_time, _track(truth), TimingStats(1.0, 1.0, 1.0))
+    assert s.to_json()["faults"][0]["detected_t_s"] is None

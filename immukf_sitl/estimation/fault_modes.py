@@ -233,13 +233,18 @@ class ChannelOffset:
     def reset(self, means: np.ndarray, covs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Copies of ``means (r, nx)``, ``covs (r, nx, nx)``: trusted channels' offsets at prior."""
         means, covs = means.copy(), covs.copy()
-        for j in range(len(self.modes)):
-            rows = self.index + np.flatnonzero(~self.failed[:, j])
-            means[j, rows] = 0.0
-            covs[j, rows, :] = 0.0
-            covs[j, :, rows] = 0.0
-            covs[j, rows, rows] = OFFSET_PRIOR_VAR
+        slots, rows = self._trusted
+        means[slots, rows] = 0.0
+        covs[slots, rows, :] = 0.0
+        covs[slots, :, rows] = 0.0
+        covs[slots, rows, rows] = OFFSET_PRIOR_VAR
         return means, covs
+
+    @cached_property
+    def _trusted(self) -> tuple[np.ndarray, np.ndarray]:
+        """Slot and state row of every offset a slot holds at its prior."""
+        channels, slots = np.nonzero(~self.failed)
+        return slots, self.index + channels
 
     def residuals(
         self, means: np.ndarray, covs: np.ndarray, nu: np.ndarray, var: np.ndarray
