@@ -10,6 +10,7 @@ from scipy import stats
 
 from immukf_sitl.experiments.observability import (
     MIN_NOISE_FACTOR,
+    channel_band_sigma,
     channel_sigma,
     fault_deviation,
     fault_observable_time_s,
@@ -43,6 +44,21 @@ def test_channel_sigmas():
     assert [channel_sigma(c, imu) for c in "xyzpqr"] == [0.1] * 3 + [0.01] * 3
     with pytest.raises(ValueError, match="channel 'w'"):
         channel_sigma("w", imu)
+
+
+def test_the_band_holds_what_a_healthy_sensor_of_the_spec_sheet_reads():
+    """Noise and turn-on bias in quadrature: a bias inside the spec sheet is not a fault."""
+    imu = ImuSpec(accel_sigma_mps2=0.03, gyro_sigma_radps=0.003, accel_bias_sigma_mps2=0.04,
+                  gyro_bias_sigma_radps=0.004)  # fmt: skip
+    assert channel_band_sigma("x", imu) == pytest.approx(0.05)
+    assert channel_band_sigma("q", imu) == pytest.approx(0.005)
+    assert channel_band_sigma("q", ImuSpec(gyro_sigma_radps=0.003)) == pytest.approx(0.003)
+    t = np.arange(0.0, 2.0, 0.01)
+    small = FaultSpec(0.5, ("q",), "bias", 0.024)  # 4.8 band sigmas: never observable
+    large = FaultSpec(0.5, ("q",), "bias", 0.026)
+    truth = np.zeros((t.size, 6))
+    assert fault_observable_time_s(small, t, truth, imu) is None
+    assert fault_observable_time_s(large, t, truth, imu) == pytest.approx(0.5)
 
 
 def test_deviation_of_each_kind():
