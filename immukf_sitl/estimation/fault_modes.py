@@ -262,6 +262,25 @@ class ChannelOffset:
         var[j, i] = self.ranges[i] ** 2 * covs[j, rows, rows]
         return nu, var
 
+    def naming_residuals(
+        self,
+        predicted_means: np.ndarray,
+        nu: np.ndarray,
+        var: np.ndarray,
+        reference: np.ndarray,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """``nu``, ``var (r, 6)``: what a failed channel's kind and size are read from.
+
+        Each failed channel's reading against its offset-free prediction, ``z - h(x(k+1|k))``,
+        and how well a mode that trusts the channel predicts it (``var`` of the ``reference``
+        slots of :func:`reference_slots`, in :func:`failed_channels` order).
+        """
+        nu, out = nu.copy(), var.copy()
+        j, i = failed_channels(self.modes)
+        nu[j, i] += self.ranges[i] * predicted_means[j, self.index + i]
+        out[j, i] = var[reference, i]
+        return nu, out
+
 
 def fault_mode_output(
     healthy_output: MeasurementFn,

@@ -64,6 +64,9 @@ class ImmEstimate:
     failure_weights : ndarray or None, shape (r, 6, 3)
         Each mode's weights of how each channel failed (dead, stuck, offset), when the
         ``evidence`` carries them (:meth:`DeadOrAnyEvidence.score`); None otherwise.
+    predicted_means : ndarray or None, shape (r, nx)
+        Each mode's ``x(k+1|k)``, the state its innovations were taken against; None before
+        the first step.
     """
 
     t_s: float
@@ -79,6 +82,7 @@ class ImmEstimate:
     updated: bool
     innovation_var: np.ndarray | None = None
     failure_weights: np.ndarray | None = None
+    predicted_means: np.ndarray | None = None
 
     @property
     def most_likely_mode(self) -> int:
@@ -270,4 +274,5 @@ class ImmEstimator:
             if filtered.innovation_cov is None
             else np.diagonal(filtered.innovation_cov, axis1=1, axis2=2).copy(),
             weights,
+            filtered.predicted_mean,
         )

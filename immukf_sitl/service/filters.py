@@ -40,6 +40,7 @@ from immukf_sitl.estimation import (
     fault_mode_noise_var,
     fault_mode_output,
 )
+from immukf_sitl.estimation.fault_modes import reference_slots
 from immukf_sitl.estimation.ukf import NoiseForm
 from immukf_sitl.models.aero import AeroModel
 from immukf_sitl.models.augmented import (
@@ -189,6 +190,10 @@ class _Bank:
         self, estimate: VariantEstimate
     ) -> tuple[np.ndarray, np.ndarray] | None:
         """Per-mode IMU innovations (:meth:`AircraftEstimator.channel_innovations`); None: none."""
+        return None
+
+    def naming_innovations(self, estimate: VariantEstimate) -> tuple[np.ndarray, np.ndarray] | None:
+        """What a failure is named from (:meth:`AircraftEstimator.naming_innovations`)."""
         return None
 
     def start(
@@ -348,6 +353,23 @@ class AircraftEstimator(_Bank):
         if offset is not None:  # a newly failed channel: its offset, the rest's disagreement
             nu, var = offset.residuals(bank.mode_means, bank.mode_covs, nu, var)
         return nu, np.maximum(var, np.finfo(float).tiny)
+
+    def naming_innovations(self, estimate: VariantEstimate) -> tuple[np.ndarray, np.ndarray] | None:
+        """What a declared channel's failure is named from: :meth:`channel_innovations`, but
+        each failed channel against the state's prediction of it without its offset, with
+        the variance of a mode that trusts it (the learnt offset would hide a noisy channel's
+        scatter and a gain's shape). None on a predict-only step.
+        """
+        out = self.channel_innovations(estimate)
+        bank, offset = estimate.filter, self.dynamics.offset
+        if out is None or offset is None or bank.predicted_means is None:
+            return out
+        reference = reference_slots(self.modes)
+        if reference is None:
+            return out
+        raw = bank.innovations[:, :6]
+        var = bank.innovation_var[:, :6]
+        return offset.naming_residuals(bank.predicted_means, raw, var, reference)
 
     def initial_estimate(
         self,
