@@ -108,9 +108,9 @@ def _evidence(modes):
     return DeadOrAnyEvidence(modes, imu.sigmas**2, width, offset=offset), imu
 
 
-def test_failure_weights_are_the_bayes_posterior_of_dead_stuck_and_offset():
+def test_failure_weights_are_the_bayes_posterior_of_the_ways_to_fail():
     """One step against a direct computation: the channel's factor is the predictive mixture
-    of the three ways to fail at the mode's weights, and the weights become its posterior."""
+    of the four ways to fail at the mode's weights, and the weights become its posterior."""
     modes = single_fault_modes()
     evidence, imu = _evidence(modes)
     q, slot = 4, 5
@@ -124,7 +124,8 @@ def test_failure_weights_are_the_bayes_posterior_of_dead_stuck_and_offset():
     nu[slot, q] = 0.01  # the q mode's offset explains the reading to 0.01
     mean = np.zeros((7, 6))  # offsets (the evidence's index 0): the q mode's learnt one
     mean[slot, q] = -0.17 / imu.ranges[q]
-    weights = np.tile(np.array([0.2, 0.3, 0.5]), (7, 6, 1))
+    prior = [0.2, 0.3, 0.4, 0.1]
+    weights = np.tile(np.array(prior), (7, 6, 1))
     base = np.zeros(7)
     got, updated = evidence.score(0.0, mean, nu, cov, z, None, base, weights, previous, None)
     r = imu.sigmas[q] ** 2
@@ -132,7 +133,8 @@ def test_failure_weights_are_the_bayes_posterior_of_dead_stuck_and_offset():
     dead = norm.logpdf(z[q], 0.0, math.sqrt(r))  # seen: the prediction is far from zero
     stuck = norm.logpdf(z[q] - previous[q], 0.0, STUCK_SIGMAS * math.sqrt(r))
     off = norm.logpdf(nu[slot, q], 0.0, math.sqrt(s))
-    joint = np.log([0.2, 0.3, 0.5]) + [dead, stuck, off]
+    anything = norm.logpdf(nu[slot, q], 0.0, math.sqrt(s + imu.ranges[q] ** 2 / 3.0))
+    joint = np.log(prior) + [dead, stuck, off, anything]
     predictive = np.logaddexp.reduce(joint)
     assert got[slot] == pytest.approx(predictive - off, abs=1e-9)
     posterior = np.maximum(np.exp(joint - predictive), FAILURE_WEIGHT_FLOOR)
@@ -157,7 +159,7 @@ def test_settled_weights_cost_a_mode_nothing_where_a_fresh_mixture_costs_ln_2():
             0.0, np.zeros((7, 6)), nu, cov, z, None, np.zeros(7), weights, previous, None
         )
         costs.append(got[5])
-    assert costs[0] == pytest.approx(math.log(1 / 3), abs=0.01)  # the prior's price, once
+    assert costs[0] == pytest.approx(math.log(1 / 4), abs=0.01)  # the prior's price, once
     assert abs(costs[-1]) < 10 * FAILURE_WEIGHT_FLOOR  # then nothing
     assert weights[5, 4, 2] > 0.999
     static = evidence(0.0, np.zeros((7, 6)), nu, cov, z, None, np.zeros(7))

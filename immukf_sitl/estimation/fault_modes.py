@@ -165,8 +165,10 @@ FAULT_SIGNATURES: tuple[str, ...] = ("untrusted", "zero")
 
 #: variance of an offset spread evenly over the full scale, in full scales squared (``1 / 3``)
 OFFSET_PRIOR_VAR = 1.0 / 3.0
-#: prior weights of how a newly failed channel failed: dead, stuck, offset (no preference)
-FAILURE_PRIOR = np.full(3, 1.0 / 3.0)
+#: the ways a channel fails, in the order of the failure weights
+FAILURE_WAYS: tuple[str, ...] = ("dead", "stuck", "offset", "anything")
+#: prior weights of how a failed channel failed (no preference)
+FAILURE_PRIOR = np.full(len(FAILURE_WAYS), 1.0 / len(FAILURE_WAYS))
 #: a weight of how a channel failed never falls below this (so that it can still change)
 FAILURE_WEIGHT_FLOOR = 1e-6
 #: a stuck reading repeats to within this many noise sigmas (a held register: exactly)
@@ -666,7 +668,7 @@ class DeadOrAnyEvidence:
         return modes, log_any, (log_dead, log_w_dead), log_stuck, channels, (observable, moved)
 
     def prior_weights(self, r: int) -> np.ndarray | None:
-        """``(r, 6, 3)``: every mode's prior weights of dead, stuck and offset per channel.
+        """``(r, 6, 4)``: every mode's prior weights of each way to fail (:data:`FAILURE_WAYS`).
 
         None without offsets (the weights are those of a channel read through its offset).
         """
@@ -675,15 +677,15 @@ class DeadOrAnyEvidence:
     def widths(self, weights: np.ndarray | None) -> np.ndarray | None:
         """``(r, 6)``: the variance each mode gives each failed channel in its update.
 
-        ``(w_dead + w_stuck) V``, ``V = range^2 / 3``: a channel its mode believes dead or stuck
-        says nothing of the state (as the untrusted width did), one it believes offset is read
-        through its offset. The update is linear in the channel, so it cannot follow the
+        ``(1 - w_offset) V``, ``V = range^2 / 3``: a channel its mode believes dead, stuck or
+        reading anything says nothing of the state, one it believes offset is read through its
+        offset. The update is linear in the channel, so it cannot follow the
         mixture itself; this is its moment-matched reading's weight.
         """
         if weights is None or self.offset is None:
             return None
         wide = self.offset.ranges**2 / 3.0
-        return (weights[:, :, 0] + weights[:, :, 1]) * wide[None, :] * self.offset.failed.T
+        return (1.0 - weights[:, :, 2]) * wide[None, :] * self.offset.failed.T
 
     def score(
         self,
@@ -701,12 +703,14 @@ class DeadOrAnyEvidence:
         """The modes' log-likelihoods, and each mode's weights of how each channel failed.
 
         A failed channel read through its offset (:class:`ChannelOffset`) failed one way, for
-        good: dead, stuck or offset, with the mode's ``weights`` ``(r, 6, 3)`` (mixed from the
-        other modes as the states are, eqs. 6-8). Its factor is the predictive mixture
-        ``sum_s w_s p_s(z)``, after which the weights are the posterior ``w_s p_s(z) / sum``
-        (floored at :data:`FAILURE_WEIGHT_FLOOR`): once the readings have shown which way the
-        channel failed, the others cost nothing, where a mixture drawn anew each step would
-        charge ``ln(1 / (1 - w))`` a step for the ways it did not fail. ``widths`` ``(r, 6)``
+        good (:data:`FAILURE_WAYS`): dead, stuck, offset (a bias, learnt and then held), or
+        anything in the range (a drift, a gain, noise: ``N(nu; 0, S + V)``), with the mode's
+        ``weights`` ``(r, 6, 4)`` (mixed from the other modes as the states are, eqs. 6-8).
+        Its factor is the predictive mixture ``sum_s w_s p_s(z)``, after which the weights are
+        the posterior ``w_s p_s(z) / sum`` (floored at :data:`FAILURE_WEIGHT_FLOOR`): once the
+        readings have shown which way the channel failed, the others cost nothing, where a
+        mixture drawn anew each step would charge ``ln(1 / (1 - w))`` a step for the ways it did
+        not fail. ``widths`` ``(r, 6)``
         are what :meth:`widths` gave this step's update (the offset part's density leaves them
         out).
         """
@@ -722,16 +726,21 @@ class DeadOrAnyEvidence:
             nu = innovation[modes, channels]
             s_offset = innovation_cov[modes, channels, channels] - widths[modes, channels]
             log_offset = _log_normal(nu, np.maximum(s_offset, np.finfo(float).tiny))
+        wide = self.offset.ranges[channels] ** 2 / 3.0
+        s_any = innovation_cov[modes, channels, channels] + wide
+        if widths is not None:
+            s_any = s_any - widths[modes, channels]
+        log_anything = _log_normal(innovation[modes, channels], s_any)
         log_w = np.log(np.maximum(weights[modes, channels], FAILURE_WEIGHT_FLOOR))
         # the mode's factor: a part that cannot be seen scores as the reference (neutral) ...
-        parts = np.stack([log_dead, log_stuck, log_offset], axis=1)  # (k, 3)
+        parts = np.stack([log_dead, log_stuck, log_offset, log_anything], axis=1)  # (k, 4)
         predictive = np.logaddexp.reduce(log_w + parts, axis=1)
         out = np.array(log_likelihood, dtype=float)
         np.add.at(out, modes, predictive - log_factor)
         # ... and says nothing of which way the channel failed: it moves no weight
         told = np.stack(
             [np.where(seen[0], log_dead, log_offset), np.where(seen[1], log_stuck, log_offset),
-             log_offset], axis=1,
+             log_offset, log_anything], axis=1,
         )  # fmt: skip
         joint = log_w + told
         posterior = np.exp(joint - np.logaddexp.reduce(joint, axis=1)[:, None])

@@ -12,8 +12,9 @@ channel's failure: the mode ``D + c`` is always in the bank.
 - **Declare** channel ``c`` not in ``D`` when slot ``D + c`` stays at or above ``threshold``
   for ``dwell_s`` *and* the channel shows a failure: over the :class:`SignatureWindow` it reads
   zero plus noise, or the offset the slot learnt for it is beyond its uncertainty (the
-  chi-square quantile ``signature_quantile`` either way), or the slot has seen it read zero or
-  hold still where it should have moved (its weights of dead and stuck at least the quantile).
+  chi-square quantile ``signature_quantile`` either way), or the slot has seen it fail in a way
+  no offset explains: read zero or hold still where it should have moved, or read what no
+  learnt offset fits (its weights of dead, stuck and anything at least the quantile).
 - **Release** channel ``c`` in ``D`` when, for ``clear_dwell_s``, slot ``D - c`` (the
   recovery) stays above ``1 - clear_threshold`` or the offset the base learnt for the channel
   stays within its uncertainty of zero while known to ``alive_sigmas`` noise sigmas (a channel
@@ -217,7 +218,7 @@ class DeclaredSetDetector:
             if (
                 self._window.reads_zero(failed)
                 or self._window.reads_inconsistent(j, failed)
-                or self._seen_dead_or_stuck(failure_weights, j, channel)
+                or self._seen_failing(failure_weights, j, channel)
             ):
                 mode = FaultMode(1 << channel)
                 self._change(channel)
@@ -225,17 +226,16 @@ class DeclaredSetDetector:
                 return [DetectionEvent("detected", mode, t_s, p, declared_after=self._after())]
         return self._unisolated(t_s, probabilities)
 
-    def _seen_dead_or_stuck(self, weights: np.ndarray | None, j: int, channel: int) -> bool:
-        """Whether slot ``j`` has seen its channel read zero or hold still where it should not.
+    def _seen_failing(self, weights: np.ndarray | None, j: int, channel: int) -> bool:
+        """Whether slot ``j`` has seen its channel fail in a way no healthy offset explains.
 
-        Its weights of dead and stuck together at least ``signature_quantile``: they move only
-        on readings the reference predicts away from zero or from the held value.
+        Its weights of dead, stuck and anything together at least ``signature_quantile``
+        (dead and stuck move only on readings the reference predicts away from zero or from the
+        held value).
         """
         if weights is None:
             return False
-        return bool(
-            weights[j, channel, 0] + weights[j, channel, 1] >= self.config.signature_quantile
-        )
+        return bool(1.0 - weights[j, channel, 2] >= self.config.signature_quantile)
 
     def _unisolated(self, t_s: float, probabilities: np.ndarray) -> list[DetectionEvent]:
         """An ``unisolated`` event once the base mode has lost and no channel has won."""

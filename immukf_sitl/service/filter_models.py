@@ -381,7 +381,7 @@ class PaperModel(FilterModel):
     recovery_probability: float = 0.25
     probability_floor: float = 1e-6
     fault_signature: str = "zero"
-    offset_walk_sigmas: float = 1.0
+    offset_walk_sigmas: float = 0.01
 
     def __post_init__(self) -> None:
         self._check_positive(process_noise_factor=self.process_noise_factor)
@@ -523,7 +523,7 @@ class RealAirModel(FilterModel):
     turbulence_floor: float = 0.1
     turbulence_averaging_s: float = 10.0
     fault_signature: str = "zero"
-    offset_walk_sigmas: float = 1.0
+    offset_walk_sigmas: float = 0.01
 
     def __post_init__(self) -> None:
         self._check_signature()

@@ -355,10 +355,11 @@ class AircraftEstimator(_Bank):
         return nu, np.maximum(var, np.finfo(float).tiny)
 
     def naming_innovations(self, estimate: VariantEstimate) -> tuple[np.ndarray, np.ndarray] | None:
-        """What a declared channel's failure is named from: :meth:`channel_innovations`, but
-        each failed channel against the state's prediction of it without its offset, with
-        the variance of a mode that trusts it (the learnt offset would hide a noisy channel's
-        scatter and a gain's shape). None on a predict-only step.
+        """What a declared channel's failure is named from (None on a predict-only step).
+
+        :meth:`channel_innovations`, but each failed channel against the state's prediction of
+        it without its offset, with the variance of a mode that trusts it: the learnt offset
+        would hide a noisy channel's scatter and a gain's shape.
         """
         out = self.channel_innovations(estimate)
         bank, offset = estimate.filter, self.dynamics.offset
