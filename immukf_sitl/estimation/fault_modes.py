@@ -677,15 +677,22 @@ class DeadOrAnyEvidence:
     def widths(self, weights: np.ndarray | None) -> np.ndarray | None:
         """``(r, 6)``: the variance each mode gives each failed channel in its update.
 
-        ``(1 - w_offset) V``, ``V = range^2 / 3``: a channel its mode believes dead, stuck or
-        reading anything says nothing of the state, one it believes offset is read through its
-        offset. The update is linear in the channel, so it cannot follow the
-        mixture itself; this is its moment-matched reading's weight.
+        ``(w_dead + w_stuck) V``, ``V = range^2 / 3``: a channel its mode believes dead or
+        stuck says nothing of the state, one it believes offset (or reading anything) is read
+        through its offset. "Anything" widens only the mode's likelihood: at the first step it
+        cannot be told from an offset still to learn (both are ``N(nu; 0, S + V)``), and a
+        width on it would keep the offset from being learnt. The update is linear in the
+        channel, so it cannot follow the mixture itself; this is its moment-matched reading's
+        weight.
         """
         if weights is None or self.offset is None:
             return None
         wide = self.offset.ranges**2 / 3.0
-        return (1.0 - weights[:, :, 2]) * wide[None, :] * self.offset.failed.T
+        # the floors are not a belief: a settled offset is read at R alone (a floor of 1e-6 on
+        # two ways would leave 2e-6 V, 13 gyro noise sigmas, to it)
+        sharp = weights[:, :, 0] + weights[:, :, 1] - 2.0 * FAILURE_WEIGHT_FLOOR
+        doubt = np.maximum(sharp, 0.0)
+        return doubt * wide[None, :] * self.offset.failed.T
 
     def score(
         self,
