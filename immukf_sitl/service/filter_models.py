@@ -251,7 +251,8 @@ class FilterModel(ABC):
     a sensor fails fits; docs/design/detection-and-tuning.md says what it does and misses).
     An untrusted mode reads its newly failed channel through an offset state
     (:class:`~immukf_sitl.estimation.fault_modes.ChannelOffset`) that walks by
-    ``offset_walk_sigmas`` gyro noise sigmas a step (in full scales: 0.41 of an accelerometer's).
+    ``offset_walk_sigmas`` gyro noise sigmas a step (0.01: a bias, held once learnt; in full
+    scales, 0.41 as many of an accelerometer's).
     """
 
     name: ClassVar[str]
