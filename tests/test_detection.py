@@ -3,8 +3,13 @@
 import numpy as np
 import pytest
 
-from immukf_sitl.estimation import single_fault_modes
-from immukf_sitl.service.detection import DetectorConfig, FaultDetector, SignatureWindow
+from immukf_sitl.estimation import FaultMode, single_fault_modes
+from immukf_sitl.service.detection import (
+    DetectionEvent,
+    DetectorConfig,
+    FaultDetector,
+    SignatureWindow,
+)
 
 MODES = single_fault_modes()
 
@@ -157,3 +162,13 @@ def test_signature_test_settings_are_checked():
         DetectorConfig(signature_window=0)
     with pytest.raises(ValueError, match="signature test"):
         DetectorConfig(signature_quantile=1.0)
+
+
+def test_an_event_round_trips_through_json_with_the_declared_set():
+    event = DetectionEvent(
+        "detected", FaultMode.from_name("x"), 1.5, 0.97, declared_after=FaultMode.from_name("x+p")
+    )
+    assert DetectionEvent.from_json(event.to_json()) == event
+    plain = DetectionEvent("cleared", FaultMode.from_name("q"), 2.0, 0.3)
+    assert "declared_after" not in plain.to_json()
+    assert DetectionEvent.from_json(plain.to_json()) == plain

@@ -96,7 +96,10 @@ class DetectionEvent:
     declared_after: FaultMode | None = None
 
     def to_json(self) -> dict[str, object]:
-        """``{"kind", "mode", "t_s", "probability"}`` (+ ``failure``, ``size`` when named)."""
+        """``{"kind", "mode", "t_s", "probability"}``, and what the event carries besides.
+
+        ``failure`` and ``size`` when named, ``declared_after`` when the detector holds a set.
+        """
         out: dict[str, object] = {
             "kind": self.kind,
             "mode": self.mode.name,
@@ -106,6 +109,8 @@ class DetectionEvent:
         if self.failure is not None:
             out["failure"] = self.failure
             out["size"] = self.size
+        if self.declared_after is not None:
+            out["declared_after"] = self.declared_after.name
         return out
 
     @classmethod
@@ -118,6 +123,7 @@ class DetectionEvent:
             data["probability"],
             data.get("failure"),
             data.get("size"),
+            None if "declared_after" not in data else FaultMode.from_name(data["declared_after"]),
         )
 
     def text(self) -> str:
