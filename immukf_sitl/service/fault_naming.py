@@ -144,6 +144,11 @@ class FaultNamer:
         self._pending: dict[int, tuple[int, float]] = {}  # channel -> mode slot, declared at
         self._samples: dict[int, list[tuple[float, float, float, float]]] = {}
 
+    @property
+    def pending(self) -> bool:
+        """Whether a declaration waits to be named (else :meth:`observe` has nothing to do)."""
+        return bool(self._pending)
+
     def declared(self, mode_index: int, channel: int, t_s: float) -> None:
         """Start gathering for mode ``mode_index``'s failed ``channel``, declared at ``t_s``."""
         self._pending[channel] = (mode_index, t_s)

@@ -21,6 +21,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Literal
 
 import numpy as np
@@ -361,16 +362,20 @@ class AircraftEstimator(_Bank):
         it without its offset, with the variance of a mode that trusts it: the learnt offset
         would hide a noisy channel's scatter and a gain's shape.
         """
-        out = self.channel_innovations(estimate)
         bank, offset = estimate.filter, self.dynamics.offset
-        if out is None or offset is None or bank.predicted_means is None:
-            return out
-        reference = reference_slots(self.modes)
-        if reference is None:
-            return out
+        reference = self._references
+        if offset is None or bank.predicted_means is None or reference is None:
+            return self.channel_innovations(estimate)
+        if bank.innovations is None or bank.innovation_var is None:
+            return None
         raw = bank.innovations[:, :6]
         var = bank.innovation_var[:, :6]
         return offset.naming_residuals(bank.predicted_means, raw, var, reference)
+
+    @cached_property
+    def _references(self) -> np.ndarray | None:
+        """:func:`reference_slots` of the bank's modes (fixed for a bank)."""
+        return reference_slots(self.modes)
 
     def initial_estimate(
         self,

@@ -389,8 +389,10 @@ class EstimatorPipeline:
         events = self.detector.update(
             t_s, est.mode_probabilities, imu, sigmas, innovations, est.filter.failure_weights
         )
-        naming = self.estimator.naming_innovations(est)
-        names = [] if naming is None else self._namer.observe(t_s, imu, *naming)
+        names = []
+        if self._namer.pending:  # the naming residuals only while a declaration waits for them
+            naming = self.estimator.naming_innovations(est)
+            names = [] if naming is None else self._namer.observe(t_s, imu, *naming)
         for k, event in enumerate(events):
             channel = int(np.flatnonzero(event.mode.healthy_mask == 0.0)[0])
             if event.kind == "cleared":
