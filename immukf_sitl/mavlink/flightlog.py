@@ -87,13 +87,45 @@ class FaultRecord:
 
 @dataclass
 class FlightLog:
-    """A flight tlog, parsed: the stream in arrival order, truth and faults."""
+    """A flight log, parsed: the stream in arrival order, truth and faults.
+
+    Every log reader (tlog, DataFlash, ULog) fills one; ``replay`` runs any of them.
+
+    Attributes
+    ----------
+    stream : list
+        IMU samples of one IMU (``imu_source``), GPS fixes and servo outputs, in time order.
+    truth, faults : list
+        The sim's truth and the fault proxy's annotations (empty in a real autopilot's log).
+    bad_records : int
+        Records the reader could not decode (corrupt bytes; never a readable record).
+    scenario : str or None
+        The scenario's name, when the log came from this project's sim.
+    kind : str
+        ``tlog``, ``dataflash`` or ``ulog``.
+    vehicle : str or None
+        What the log says flew (:mod:`immukf_sitl.logs.vehicle`), None when it does not say.
+    vehicle_evidence : str
+        Where ``vehicle`` came from, for messages (``HEARTBEAT type QUADROTOR``).
+    imu_source : str
+        The IMU stream in ``stream`` (``RAW_IMU id 0``, ``IMU[1]``, ``sensor_combined``).
+    imu_sources : dict
+        Every IMU stream in the log and its sample count.
+    params : dict
+        The autopilot's parameters in the log (PARAM_VALUE, PARM, ULog parameters).
+    """
 
     stream: list[ImuSample | GpsSample | ActuatorSample] = field(default_factory=list)
     truth: list[TruthSample] = field(default_factory=list)
     faults: list[FaultRecord] = field(default_factory=list)
     bad_records: int = 0
     scenario: str | None = None
+    kind: str = "tlog"
+    vehicle: str | None = None
+    vehicle_evidence: str = ""
+    imu_source: str = ""
+    imu_sources: dict[str, int] = field(default_factory=dict)
+    params: dict[str, float] = field(default_factory=dict)
 
 
 def _messages(path: str | Path) -> Iterable[MavMessage]:

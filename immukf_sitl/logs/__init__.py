@@ -1,0 +1,1 @@
+"""Autopilot logs in: MAVLink tlogs, ArduPilot DataFlash ``.bin`` and PX4 ULog ``.ulg``."""
