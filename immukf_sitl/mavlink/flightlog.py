@@ -143,10 +143,44 @@ def _messages(path: str | Path) -> Iterable[MavMessage]:
         conn.close()
 
 
+class Annotations:
+    """The proxy's and the sim's texts in a log (``SCENARIO``, ``FAULT``, ``FAULT END``), parsed.
+
+    Every reader feeds it the log's texts in order (STATUSTEXT, DataFlash MSG, ULog logged
+    messages), so that a flight written in any format carries its faults and its name.
+    """
+
+    def __init__(self) -> None:
+        self.faults: list[FaultRecord] = []
+        self.scenario: str | None = None
+        self._open: dict[tuple[str, tuple[str, ...]], int] = {}
+
+    def feed(self, text: str) -> None:
+        """Take one text (anything that is not an annotation is ignored)."""
+        named = SCENARIO_TEXT.match(text)
+        if named and self.scenario is None:
+            self.scenario = named["name"]
+        match = FAULT_TEXT.match(text)
+        if not match:
+            return
+        channels = tuple(match["channels"].split("+"))
+        key = (match["kind"], channels)
+        t_s = float(match["t"])
+        if match["end"]:
+            if key in self._open:
+                i = self._open.pop(key)
+                self.faults[i] = dataclasses.replace(self.faults[i], end_t_s=t_s)
+            return
+        self._open[key] = len(self.faults)
+        value = float(match["v"]) if match["v"] else 0.0
+        rate = float(match["r"]) if match["r"] else 0.0
+        self.faults.append(FaultRecord(match["kind"], channels, t_s, value, rate_hz=rate))
+
+
 def read_flight_log(path: str | Path) -> FlightLog:
     """Parse a flight tlog (see the module docstring)."""
     log = FlightLog()
-    open_faults: dict[tuple[str, tuple[str, ...]], int] = {}
+    notes = Annotations()
     for msg in _messages(path):
         kind = msg.get_type()
         try:
@@ -163,30 +197,12 @@ def read_flight_log(path: str | Path) -> FlightLog:
                 if abs(log.truth[-1].t_s - t_s) < 1e-6:  # the truth record of the same step
                     log.truth[-1] = dataclasses.replace(log.truth[-1], wind_ned_mps=wind)
             elif kind == "STATUSTEXT":
-                named = SCENARIO_TEXT.match(msg.text)
-                if named and log.scenario is None:
-                    log.scenario = named["name"]
-                match = FAULT_TEXT.match(msg.text)
-                if match:
-                    channels = tuple(match["channels"].split("+"))
-                    key = (match["kind"], channels)
-                    t_s = float(match["t"])
-                    if match["end"]:
-                        if key in open_faults:
-                            i = open_faults.pop(key)
-                            f = log.faults[i]
-                            log.faults[i] = dataclasses.replace(f, end_t_s=t_s)
-                    else:
-                        open_faults[key] = len(log.faults)
-                        value = float(match["v"]) if match["v"] else 0.0
-                        rate = float(match["r"]) if match["r"] else 0.0
-                        log.faults.append(
-                            FaultRecord(match["kind"], channels, t_s, value, rate_hz=rate)
-                        )
+                notes.feed(msg.text)
             elif kind == "BAD_DATA":
                 log.bad_records += 1
         except codec.DecodeError:
             log.bad_records += 1
+    log.faults, log.scenario = notes.faults, notes.scenario
     return log
 
 
