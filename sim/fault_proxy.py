@@ -1,4 +1,4 @@
-"""The fault proxy: a scenario's IMU faults injected into the HIGHRES_IMU stream.
+"""The fault proxy: a scenario's IMU faults injected into the IMU stream.
 
 It sits between the sim and the estimator: ``immukf-sitl proxy SCENARIO --in URL --out URL``.
 
@@ -11,13 +11,15 @@ Two layers, as a Gymnasium wrapper sits on an environment:
   ``udpin`` the sim sends to) go to the estimator (``--out``, a ``udpout``); datagrams coming back
   from the estimator on that socket (its ``SYSTEM_TIME`` acknowledgements of the lock-step, and
   anything else) go back to the sim. Everything is forwarded as the raw bytes received
-  (sequence numbers, source ids, signatures and even malformed bytes untouched), except that a
-  HIGHRES_IMU frame on which a fault acts is replaced in its datagram by the faulted message,
+  (sequence numbers, source ids, signatures and even malformed bytes untouched), except that an
+  IMU frame (HIGHRES_IMU, RAW_IMU, SCALED_IMU, SCALED_IMU2 or SCALED_IMU3: whatever the sim's
+  profile sends) on which a fault acts is replaced in its datagram by the faulted message, in
+  the message's own units and quantisation,
   re-packed with the original source system, component and sequence number and the original
   ``fields_updated`` (clearing those bits would hand the estimator the answer).
 
 With ``--signing-key FILE`` (MAVLink 2 signing, :mod:`immukf_sitl.mavlink.signing`) the proxy
-checks the signature of every frame from the sim; a faulted HIGHRES_IMU is signed again by
+checks the signature of every frame from the sim; a faulted IMU frame is signed again by
 pymavlink with the key, with the original frame's link id and timestamp (it stays in the sim's
 stream). A frame that fails the check (unsigned, wrong signature, replayed) is never faulted
 nor re-signed: it is forwarded as it came, and the estimator rejects it.
@@ -56,9 +58,10 @@ from immukf_sitl.errors import UserError
 from immukf_sitl.estimation.fault_modes import IMU_CHANNELS
 from immukf_sitl.fault_kinds import spike_schedule
 from immukf_sitl.mavlink.codec import (
+    IMU_MESSAGES,
     DecodeError,
-    decode_highres_imu,
-    repack_highres_imu,
+    decode_imu,
+    repack_imu,
     statustext_message,
 )
 from immukf_sitl.mavlink.flightlog import fault_annotation, scenario_annotation
@@ -207,9 +210,9 @@ class ProxyStats:
     to_estimator, to_sim : int
         Datagrams forwarded in each direction.
     modified : int
-        HIGHRES_IMU messages replaced by their faulted version.
+        IMU messages replaced by their faulted version.
     bad : int
-        Datagrams from the sim with malformed bytes or an unusable HIGHRES_IMU (forwarded as
+        Datagrams from the sim with malformed bytes or an unusable IMU message (forwarded as
         they came; the estimator counts them too).
     """
 
@@ -229,7 +232,7 @@ class ProxyStats:
 
 
 class FaultProxy:
-    """The UDP shell: forwards both ways, injecting faults into HIGHRES_IMU on the way down.
+    """The UDP shell: forwards both ways, injecting faults into the IMU messages on the way down.
 
     Parameters
     ----------
@@ -271,7 +274,8 @@ class FaultProxy:
         self._to_sim = 0
         self._modified = 0
         self._bad = 0
-        self._imu_type = mavlink.MAVLINK_MSG_ID_HIGHRES_IMU
+        #: every IMU message of every profile (HIGHRES_IMU, RAW_IMU, SCALED_IMU*) is faulted
+        self._imu_types = {getattr(mavlink, f"MAVLINK_MSG_ID_{kind}") for kind in IMU_MESSAGES}
 
     def _new_parser(self) -> mavlink.MAVLink:
         """A robust parser (checking signatures with the key, if any)."""
@@ -315,7 +319,7 @@ class FaultProxy:
         """The datagram to forward to the estimator for one datagram from the sim.
 
         Never raises on malformed input: unparseable bytes are counted and passed on as they
-        came. HIGHRES_IMU frames on which a fault acts are spliced out and replaced. With a
+        came. IMU frames on which a fault acts are spliced out and replaced. With a
         tlog, every parsed frame is recorded as forwarded.
         """
         parser = self._parser
@@ -339,20 +343,21 @@ class FaultProxy:
             time_usec = getattr(message, "time_usec", None)
             if isinstance(time_usec, int):
                 self._time_s = time_usec * 1e-6
-            if message.get_msgId() == self._imu_type:
+            if message.get_msgId() in self._imu_types:
                 try:
-                    sample = decode_highres_imu(message)
+                    sample = decode_imu(message)
                 except DecodeError:
                     bad = True
                     sample = None
                 if sample is not None:
+                    self._time_s = sample.time_s  # SCALED_IMU* carry time_boot_ms
                     if self.tlog is not None:
                         self._note_transitions(sample.time_s)
                     faulted = self.injector.apply(sample)
                     if faulted is not sample:
                         start = out.find(frame, position)
                         if start >= 0:
-                            replacement = repack_highres_imu(
+                            replacement = repack_imu(
                                 message,
                                 faulted,
                                 self.signing.key if self.signing is not None else None,
@@ -409,7 +414,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="forward MAVLink from the sim to the estimator, injecting a scenario's IMU faults",
         description=(
             "Forward MAVLink 2 between the sim and the estimator, both ways, byte for byte, "
-            "except the HIGHRES_IMU channels the scenario's faults act on: zero (0 plus the "
+            "except the IMU channels the scenario's faults act on: zero (0 plus the "
             "sensor's noise), stuck, bias or drift, from each fault's t_s (sim clock). "
             "fields_updated is kept. Stops on SIGINT/SIGTERM and prints what it forwarded."
         ),
@@ -505,7 +510,7 @@ def run_proxy(args: argparse.Namespace) -> int:
     print(
         f"proxy: stopped by {signal.Signals(stop['signal']).name} after {elapsed:.1f} s: "
         f"forwarded {stats.to_estimator} datagrams to the estimator and {stats.to_sim} "
-        f"to the sim; modified {stats.modified} HIGHRES_IMU; bad {stats.bad}",
+        f"to the sim; modified {stats.modified} IMU messages; bad {stats.bad}",
         file=sys.stderr,
         flush=True,
     )

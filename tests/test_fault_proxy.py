@@ -19,7 +19,7 @@ from udp_tools import DatagramSink, bound_socket, cli_process, free_udp_port, pa
 
 from immukf_sitl.experiments.observability import fault_deviation
 from immukf_sitl.mavlink import codec
-from immukf_sitl.mavlink.codec import repack_highres_imu
+from immukf_sitl.mavlink.codec import repack_imu
 from immukf_sitl.mavlink.tlog import TlogWriter
 from immukf_sitl.mavlink.wire import ESTIMATOR_COMPONENT_ID, mavlink, open_tlog_reader
 from immukf_sitl.models.sensors import ImuSpec
@@ -180,7 +180,7 @@ def parse_one(frame: bytes):
 def test_repacked_imu_keeps_everything_but_the_faulted_channels(mavlink1):
     original = parse_one(imu_frame(1.5, seq=201, fields=0x1FFF, mavlink1=mavlink1))
     faulted = sample(1.5, BASE * np.array([1, 1, 1, 1, 0, 1]))
-    frame = repack_highres_imu(original, faulted)
+    frame = repack_imu(original, faulted)
     assert frame[0] == (0xFE if mavlink1 else 0xFD)
     message = parse_one(frame)
     assert message.get_seq() == 201
@@ -336,7 +336,7 @@ def test_proxy_over_udp_faults_only_imu_after_t_s_and_forwards_replies(tmp_path)
         "modified": 101,
         "bad": 1,
     }
-    assert "stopped by SIGTERM" in err and "modified 101 HIGHRES_IMU" in err
+    assert "stopped by SIGTERM" in err and "modified 101 IMU messages" in err
 
 
 @pytest.mark.slow

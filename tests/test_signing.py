@@ -162,12 +162,12 @@ def test_a_faulted_frame_is_re_signed_in_its_senders_stream() -> None:
         codec.highres_imu_message(_imu(2.0, q=0.3)).pack(conn.mav)
     )
     assert original.get_signed()
-    frame = codec.repack_highres_imu(original, _imu(2.0, q=0.0), KEY)
+    frame = codec.repack_imu(original, _imu(2.0, q=0.0), KEY)
     (checked,) = LinkSigning(KEY).parser().parse_buffer(frame)
     assert checked.get_type() == "HIGHRES_IMU" and checked.ygyro == 0.0
     assert frame[-13:-6] == bytes(original.get_msgbuf()[-13:-6])  # link id and timestamp kept
     (unsigned,) = (
-        LinkSigning(KEY).parser().parse_buffer(codec.repack_highres_imu(original, _imu(2.0), None))
+        LinkSigning(KEY).parser().parse_buffer(codec.repack_imu(original, _imu(2.0), None))
     )
     assert unsigned.get_type() == "BAD_DATA"
 

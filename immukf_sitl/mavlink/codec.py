@@ -69,6 +69,75 @@ def decode_highres_imu(msg: MavMessage) -> ImuSample:
     return ImuSample(msg.time_usec * 1e-6, values[:3], values[3:])
 
 
+#: The IMU messages the autopilots send: HIGHRES_IMU (PX4, this project's sim; SI floats),
+#: RAW_IMU (ArduPilot fills it scaled, in the units of SCALED_IMU) and SCALED_IMU, SCALED_IMU2,
+#: SCALED_IMU3 (mG and mrad/s in int16, ``time_boot_ms``).
+IMU_MESSAGES = ("HIGHRES_IMU", "RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3")
+#: The instance of the scaled messages that carry none in their fields.
+_SCALED_INSTANCE = {"SCALED_IMU": 0, "SCALED_IMU2": 1, "SCALED_IMU3": 2}
+#: One mG in m/s^2 and one mrad/s in rad/s: the integer units of RAW_IMU and SCALED_IMU*.
+MG_MPS2 = G0_MPS2 / 1000.0
+MRAD_RADPS = 1e-3
+
+
+def imu_instance(msg: MavMessage) -> int:
+    """Which IMU of the autopilot a message is from (``id``; SCALED_IMU2 is 1, SCALED_IMU3 2)."""
+    kind = msg.get_type()
+    if kind in _SCALED_INSTANCE:
+        return _SCALED_INSTANCE[kind]
+    return int(getattr(msg, "id", 0) or 0)
+
+
+def decode_imu(msg: MavMessage) -> ImuSample:
+    """Any of :data:`IMU_MESSAGES` to an :class:`ImuSample` in SI units.
+
+    RAW_IMU and SCALED_IMU* carry int16 mG and mrad/s (a quantum of 0.0098 m/s^2 and
+    0.001 rad/s); RAW_IMU's time is ``time_usec``, the scaled ones' ``time_boot_ms``.
+    Raises :class:`DecodeError` on unusable fields.
+    """
+    kind = msg.get_type()
+    if kind == "HIGHRES_IMU":
+        return decode_highres_imu(msg)
+    time_s = msg.time_usec * 1e-6 if kind == "RAW_IMU" else msg.time_boot_ms * 1e-3
+    accel = np.array([msg.xacc, msg.yacc, msg.zacc], dtype=float) * MG_MPS2
+    gyro = np.array([msg.xgyro, msg.ygyro, msg.zgyro], dtype=float) * MRAD_RADPS
+    if np.max(np.abs(accel)) > MAX_ACCEL_MPS2 or np.max(np.abs(gyro)) > MAX_RATE_RADPS:
+        raise DecodeError(f"{kind} value beyond any sensor's range")
+    return ImuSample(time_s, accel, gyro)
+
+
+def _imu_wire_fields(kind: str, sample: ImuSample) -> dict[str, float | int]:
+    """The six inertial fields of ``kind`` for ``sample``, in its units and quantisation."""
+    a, g = sample.accel_mps2, sample.gyro_radps
+    if kind == "HIGHRES_IMU":
+        values = [float(v) for v in (*a, *g)]
+    else:
+        values = [_int16(v / MG_MPS2) for v in a] + [_int16(v / MRAD_RADPS) for v in g]
+    names = ("xacc", "yacc", "zacc", "xgyro", "ygyro", "zgyro")
+    return dict(zip(names, values))
+
+
+def imu_message(kind: str, sample: ImuSample, instance: int = 0) -> MavMessage:
+    """``sample`` as one of :data:`IMU_MESSAGES`, quantised as the autopilots send it.
+
+    The magnetometer fields are zero (the estimator does not use them); RAW_IMU and HIGHRES_IMU
+    carry ``instance`` in ``id``, SCALED_IMU2/3 are instances 1 and 2 by their name.
+    """
+    if kind == "HIGHRES_IMU":
+        return highres_imu_message(sample, instance)
+    fields = _imu_wire_fields(kind, sample)
+    six = [fields[n] for n in ("xacc", "yacc", "zacc", "xgyro", "ygyro", "zgyro")]
+    if kind == "RAW_IMU":
+        return mavlink.MAVLink_raw_imu_message(usec(sample.time_s), *six, 0, 0, 0, instance, 0)
+    boot_ms = int(round(sample.time_s * 1000.0)) & 0xFFFFFFFF
+    factory = {
+        "SCALED_IMU": mavlink.MAVLink_scaled_imu_message,
+        "SCALED_IMU2": mavlink.MAVLink_scaled_imu2_message,
+        "SCALED_IMU3": mavlink.MAVLink_scaled_imu3_message,
+    }[kind]
+    return factory(boot_ms, *six, 0, 0, 0, 0)
+
+
 def gps_raw_int_message(sample: GpsSample, satellites: int = 12) -> MavMessage:
     """GPS_RAW_INT of a fix; the height goes to both ``alt`` and ``alt_ellipsoid``."""
     course_cdeg = int(round(math.degrees(sample.course_rad) * 100.0)) % 36000
@@ -232,26 +301,21 @@ def decode_truth(msg: MavMessage) -> TruthSample:
     )
 
 
-def repack_highres_imu(
-    original: MavMessage, sample: ImuSample, signing_key: bytes | None = None
-) -> bytes:
-    """A HIGHRES_IMU frame like ``original`` with the six inertial channels of ``sample``.
+def repack_imu(original: MavMessage, sample: ImuSample, signing_key: bytes | None = None) -> bytes:
+    """A frame like ``original`` (any of :data:`IMU_MESSAGES`) with the six channels of ``sample``.
 
-    Every other field (``time_usec``, magnetometer, pressure, ``fields_updated``, ``id``), the
-    source system and component, the sequence number and the protocol version are kept. A
-    signed ``original`` (one whose signature the caller's parser verified) is signed again with
-    ``signing_key`` by pymavlink, with its own link id and timestamp, so that it stays in its
-    sender's stream; without a key the frame goes out unsigned.
+    The channels are written in the message's own units and quantisation; every other field
+    (time, magnetometer, pressure, ``fields_updated``, ``id``), the source system and component,
+    the sequence number and the protocol version are kept. A signed ``original`` (one whose
+    signature the caller's parser verified) is signed again with ``signing_key`` by pymavlink,
+    with its own link id and timestamp, so that it stays in its sender's stream; without a key
+    the frame goes out unsigned.
     """
-    values = {name: getattr(original, name) for name in original.get_fieldnames()}
-    a, g = sample.accel_mps2, sample.gyro_radps
-    values.update(
-        xacc=float(a[0]), yacc=float(a[1]), zacc=float(a[2]),
-        xgyro=float(g[0]), ygyro=float(g[1]), zgyro=float(g[2]),
-    )  # fmt: skip
-    message = mavlink.MAVLink_highres_imu_message(
-        *(values[name] for name in original.get_fieldnames())
-    )
+    kind = original.get_type()
+    names = original.get_fieldnames()
+    values = {name: getattr(original, name) for name in names}
+    values.update(_imu_wire_fields(kind, sample))
+    message = getattr(mavlink, f"MAVLink_{kind.lower()}_message")(*(values[n] for n in names))
     encoder = mavlink.MAVLink(None, original.get_srcSystem(), original.get_srcComponent())
     encoder.seq = original.get_seq()
     frame = original.get_msgbuf()
