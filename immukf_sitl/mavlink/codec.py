@@ -114,7 +114,7 @@ def _imu_wire_fields(kind: str, sample: ImuSample) -> dict[str, float | int]:
     else:
         values = [_int16(v / MG_MPS2) for v in a] + [_int16(v / MRAD_RADPS) for v in g]
     names = ("xacc", "yacc", "zacc", "xgyro", "ygyro", "zgyro")
-    return dict(zip(names, values))
+    return dict(zip(names, values, strict=True))
 
 
 def imu_message(kind: str, sample: ImuSample, instance: int = 0) -> MavMessage:

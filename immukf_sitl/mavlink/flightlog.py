@@ -25,7 +25,9 @@ from pathlib import Path
 import numpy as np
 
 from immukf_sitl.errors import UserError
+from immukf_sitl.logs.vehicle import vehicle_of_firmware, vehicle_of_mav_type
 from immukf_sitl.mavlink import codec
+from immukf_sitl.mavlink.sources import GPS_MESSAGES, StreamSelector
 from immukf_sitl.mavlink.tlog import TlogWriter
 from immukf_sitl.mavlink.wire import MavMessage, mavlink, open_tlog_reader
 from immukf_sitl.samples import ActuatorSample, GpsSample, ImuSample, TruthSample
@@ -177,19 +179,31 @@ class Annotations:
         self.faults.append(FaultRecord(match["kind"], channels, t_s, value, rate_hz=rate))
 
 
-def read_flight_log(path: str | Path) -> FlightLog:
-    """Parse a flight tlog (see the module docstring)."""
+def read_flight_log(path: str | Path, imu: int | None = None) -> FlightLog:
+    """Parse a tlog: this project's flight logs, and any autopilot's or ground station's.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+    imu : int, optional
+        The IMU instance to read (:class:`~immukf_sitl.mavlink.sources.StreamSelector`); by
+        default the first IMU stream in the log.
+    """
     log = FlightLog()
     notes = Annotations()
+    select = StreamSelector(imu)
     for msg in _messages(path):
         kind = msg.get_type()
         try:
-            if kind == "HIGHRES_IMU":
-                log.stream.append(codec.decode_highres_imu(msg))
-            elif kind == "GPS_RAW_INT":
-                log.stream.append(codec.decode_gps_raw_int(msg))
+            if kind in codec.IMU_MESSAGES:
+                if select.follows_imu(msg):
+                    log.stream.append(codec.decode_imu(msg))
+            elif kind in GPS_MESSAGES:
+                if select.follows_gps(msg):
+                    log.stream.append(codec.decode_gps_raw_int(msg))
             elif kind == "SERVO_OUTPUT_RAW":
-                log.stream.append(codec.decode_servo_output_raw(msg))
+                if getattr(msg, "port", 0) == 0:  # servos 1-16 (port 1 carries 17-32)
+                    log.stream.append(codec.decode_servo_output_raw(msg))
             elif kind == "HIL_STATE_QUATERNION":
                 log.truth.append(codec.decode_truth(msg))
             elif kind == "WIND_COV" and log.truth:
@@ -198,12 +212,36 @@ def read_flight_log(path: str | Path) -> FlightLog:
                     log.truth[-1] = dataclasses.replace(log.truth[-1], wind_ned_mps=wind)
             elif kind == "STATUSTEXT":
                 notes.feed(msg.text)
+                if log.vehicle is None and vehicle_of_firmware(msg.text):
+                    log.vehicle = vehicle_of_firmware(msg.text)
+                    log.vehicle_evidence = f'STATUSTEXT "{msg.text.strip()}"'
+            elif kind == "HEARTBEAT":
+                _note_vehicle(log, msg)
+            elif kind == "PARAM_VALUE":
+                log.params[msg.param_id] = float(msg.param_value)
             elif kind == "BAD_DATA":
                 log.bad_records += 1
         except codec.DecodeError:
-            log.bad_records += 1
+            if kind not in GPS_MESSAGES:
+                log.bad_records += 1  # a fix without 3D lock is a readable record, not a bad one
     log.faults, log.scenario = notes.faults, notes.scenario
+    log.imu_source, log.imu_sources = select.imu_source, select.imu_sources()
+    if select.imu_stream is None and select.imu_counts:
+        raise UserError(f"{path}: {select.missing_imu()}")
     return log
+
+
+def _note_vehicle(log: FlightLog, msg: MavMessage) -> None:
+    """The vehicle of the first HEARTBEAT that names one.
+
+    A HEARTBEAT's type names the vehicle; a firmware STATUSTEXT, which says less, gives way to it.
+    """
+    vehicle = vehicle_of_mav_type(msg.type)
+    if vehicle is None or log.vehicle_evidence.startswith("HEARTBEAT"):
+        return
+    log.vehicle = vehicle
+    name = mavlink.enums["MAV_TYPE"][msg.type].name.removeprefix("MAV_TYPE_")
+    log.vehicle_evidence = f"HEARTBEAT type {name}"
 
 
 @dataclass

@@ -1,4 +1,4 @@
-"""Connections: MAVLink 2 and the dialect chosen once, here, for the whole project.
+"""Connections: MAVLink 2 and the dialect (ardupilotmega) chosen once, here, for the project.
 
 pymavlink picks MAVLink 1 or 2 from the ``MAVLINK20`` environment variable at import time and
 emits MAVLink 1 frames without it; this module sets it before the first import of
@@ -20,7 +20,9 @@ from pymavlink import mavutil  # noqa: E402
 
 from immukf_sitl.errors import UserError  # noqa: E402
 
-DIALECT = "common"
+#: ArduPilot's dialect: MAVLink common plus the messages ArduPilot adds (AHRS, HWSTATUS, ...),
+#: so that an ArduPilot stream or tlog parses whole instead of as unknown ids (MAVProxy's default)
+DIALECT = "ardupilotmega"
 mavutil.set_dialect(DIALECT)
 mavlink = mavutil.mavlink
 if mavlink.WIRE_PROTOCOL_VERSION != "2.0":  # pragma: no cover - import-order guard

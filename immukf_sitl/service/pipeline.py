@@ -25,6 +25,7 @@ re-seeded from the fault-free one (paper, section 2.A).
 from __future__ import annotations
 
 import dataclasses
+import math
 import time
 from collections import deque
 from dataclasses import dataclass, field
@@ -48,6 +49,7 @@ from immukf_sitl.service.filters import (
     VariantEstimate,
     build_estimator,
 )
+from immukf_sitl.service.stream_rate import StreamRate
 
 #: SERVO_OUTPUT_RAW's ``time_usec`` is a uint32: actuator times repeat modulo this (71.6 min).
 ACTUATOR_TIME_WRAP_S = 2**32 * 1e-6
@@ -71,8 +73,13 @@ class PipelineConfig:
     gps_gate_floor_m: float = 10.0
     #: after this many rejected fixes in a row the filter re-aligns on the next one
     gps_max_rejections: int = 5
-    #: servo outputs older than this are stale: the filter steps on, decisions are held
+    #: servo outputs older than this many of their own stream's intervals are stale (the
+    #: filter steps on, decisions are held); never sooner than ``actuator_timeout_s`` (a fast
+    #: stream's jitter on a loaded link)
+    actuator_stale_intervals: float = 3.0
     actuator_timeout_s: float = 0.1
+    #: below this IMU rate decisions are held (the estimate goes on) and a notice says so
+    min_imu_rate_hz: float = 20.0
     #: an estimate faster than this (m/s) has diverged: re-align
     max_speed_mps: float = 150.0
 
@@ -84,7 +91,11 @@ class StreamCounters:
     ``out_of_order``, ``actuator_out_of_order`` and ``gps_out_of_order`` count IMU samples,
     servo outputs and GPS fixes dropped because they were not newer than the last one of their
     kind (duplicates included). ``actuator_unwrapped`` counts servo samples whose 32-bit time
-    had wrapped (expected in a flight longer than 71.6 min, not an error).
+    had wrapped (expected in a flight longer than 71.6 min, not an error). ``gap_steps`` counts
+    IMU samples missing from the stream (against its own rate), ``predict_steps`` the filter's
+    predict-only steps (across gaps, and between the samples of a stream slower than the
+    filter's step), ``slow_imu_steps`` the steps whose decisions were held because the IMU
+    streamed below ``min_imu_rate_hz``.
     """
 
     imu_samples: int = 0
@@ -95,6 +106,8 @@ class StreamCounters:
     actuator_out_of_order: int = 0
     gps_out_of_order: int = 0
     gap_steps: int = 0
+    predict_steps: int = 0
+    slow_imu_steps: int = 0
     realignments: int = 0
     restarts: int = 0
     bad_samples: int = 0
@@ -156,6 +169,19 @@ class EstimatorPipeline:
         self._controls: np.ndarray | None = None
         self._gps_queue: deque[GpsSample] = deque(maxlen=16)
         self._last_imu_s: float | None = None
+        #: the filter's own clock: a whole number of its steps (IMU_PERIOD_S) from its start
+        self._filter_s: float | None = None
+        #: the samples of a stream faster than the filter's step, waiting for theirs
+        self._pending: list[np.ndarray] = []
+        self.imu_rate = StreamRate()
+        self.actuator_rate = StreamRate()
+        self.gps_rate = StreamRate()
+        #: how reports name the IMU stream, and what raises its rate (set by serve and replay)
+        self.imu_label = "IMU"
+        self.rate_hint = ""
+        #: one-line notices for the operator (serve sends them as STATUSTEXT), oldest first
+        self.notices: list[str] = []
+        self._slow_noted = False
         self._actuator_s: float | None = None
         self._last_gps_s: float | None = None
         self._gps_rejections = 0
@@ -228,6 +254,7 @@ class EstimatorPipeline:
         try:
             self._controls = self.params.actuators.pwm_to_controls(sample.pwm_us)
             self._actuator_s = time_s
+            self.actuator_rate.add(time_s)
         except ValueError:
             counters.bad_samples += 1
 
@@ -238,6 +265,7 @@ class EstimatorPipeline:
             self.counters.gps_out_of_order += 1
             return
         self._last_gps_s = sample.time_s
+        self.gps_rate.add(sample.time_s)
         if self.origin is None:
             self.origin = NedOrigin(sample.lat_deg, sample.lon_deg, sample.alt_m)
         self._gps_queue.append(sample)
@@ -253,7 +281,14 @@ class EstimatorPipeline:
         return np.array([north, east, down, fix.ground_speed_mps, fix.course_rad])
 
     def on_imu(self, sample: ImuSample) -> EstimateOutput | None:
-        """Run the filter on one IMU sample; None while waiting or for a dropped sample."""
+        """Run the filter on one IMU sample; None while waiting or for a dropped sample.
+
+        The filter steps at its model's fixed period (:data:`IMU_PERIOD_S`) on its own clock.
+        A sample of a slower stream (or after missing samples) is a longer step: predict-only
+        steps up to the sample, then the update with it. The samples of a faster stream are
+        averaged over each step (what an IMU's integrated output reports) and the step runs at
+        the sample that completes it; the others return None.
+        """
         counters = self.counters
         counters.imu_samples += 1
         t_s = sample.time_s
@@ -264,18 +299,24 @@ class EstimatorPipeline:
             return None
         previous_s = self._last_imu_s
         self._last_imu_s = t_s
+        self.imu_rate.add(t_s)
+        self._note_missing(previous_s, t_s)
+        self._note_rate()
         if self._controls is None:
             return None
-        imu = sample.as_array()
+        self._pending.append(sample.as_array())
+        steps = self._filter_steps(t_s)
+        if steps == 0:
+            return None  # a faster stream: this sample waits for the step it belongs to
+        imu = self._pending[0] if len(self._pending) == 1 else np.mean(self._pending, axis=0)
+        self._pending.clear()
         gps = self._gps_observation(t_s)
-        if self.estimator is not None and previous_s is not None:
-            gap_steps = int(round((t_s - previous_s) / IMU_PERIOD_S)) - 1
-            if gap_steps * IMU_PERIOD_S > self.config.max_gap_s:
+        if self.estimator is not None and steps > 1:
+            if (steps - 1) * IMU_PERIOD_S > self.config.max_gap_s:
                 counters.realignments += 1
                 self.estimator = None
-            elif gap_steps > 0:
-                counters.gap_steps += gap_steps
-                self._bridge_gap(previous_s, gap_steps, imu)
+            else:
+                self._bridge_gap(t_s - steps * IMU_PERIOD_S, steps - 1)
         if self.estimator is not None and gps is not None:
             gps = self._gate_gps(gps)
         if self.estimator is None:
@@ -291,12 +332,64 @@ class EstimatorPipeline:
             return None
         return out
 
+    def _filter_steps(self, t_s: float) -> int:
+        """How many filter steps bring the filter's clock to the sample at ``t_s`` (0: none yet).
+
+        The filter's clock moves in whole steps, so that a stream whose interval is not a
+        multiple of the step (60 Hz, a jittery link) is followed without drift: each sample is
+        taken at the step nearest its time (within half a step, or half a sample interval for
+        a faster stream, whose last sample of a step then closes it).
+        """
+        if self._filter_s is None:
+            self._filter_s = t_s
+            return 1
+        interval_s = self.imu_rate.interval_s or IMU_PERIOD_S
+        ahead_s = t_s - self._filter_s + 0.5 * min(interval_s, IMU_PERIOD_S)
+        steps = max(0, math.floor(ahead_s / IMU_PERIOD_S))
+        if steps:
+            self._filter_s += steps * IMU_PERIOD_S
+            if abs(self._filter_s - t_s) > IMU_PERIOD_S:  # a jump of the sender's clock
+                self._filter_s = t_s
+        return steps
+
+    def _note_missing(self, previous_s: float | None, t_s: float) -> None:
+        """Count the samples missing between two, against the stream's own interval."""
+        interval_s = self.imu_rate.interval_s
+        if previous_s is not None and interval_s is not None:
+            self.counters.gap_steps += max(0, round((t_s - previous_s) / interval_s) - 1)
+
+    def imu_too_slow(self) -> bool:
+        """Whether the IMU streams below the rate detection needs (decisions are held)."""
+        rate = self.imu_rate.rate_hz
+        return rate is not None and rate < self.config.min_imu_rate_hz
+
+    def _note_rate(self) -> None:
+        """Say once that the IMU is too slow for detection, with the rate it needs."""
+        if self._slow_noted or not self.imu_too_slow():
+            return
+        self._slow_noted = True
+        rate = self.imu_rate.rate_hz
+        hint = f"; {self.rate_hint}" if self.rate_hint else ""
+        self.notices.append(
+            f"{self.imu_label} at {rate:.1f} Hz: detection needs at least "
+            f"{self.config.min_imu_rate_hz:.0f} Hz, decisions held{hint}"
+        )
+
+    def take_notices(self) -> list[str]:
+        """The notices since the last call (and forget them)."""
+        notices, self.notices = self.notices, []
+        return notices
+
     def _restart(self, t_s: float) -> None:
         """Forget the old stream at a clock jump back to ``t_s`` (counted in ``restarts``)."""
         self.counters.restarts += 1
         self.estimator = None
         self.detector = None
         self._last_imu_s = None
+        self._filter_s = None
+        self._pending.clear()
+        for rate in (self.imu_rate, self.actuator_rate, self.gps_rate):
+            rate.reset()
         self._gps_rejections = 0
         # fixes of the new stream may already be queued behind the old one's
         fresh = [fix for fix in self._gps_queue if fix.time_s <= t_s + IMU_PERIOD_S]
@@ -353,15 +446,19 @@ class EstimatorPipeline:
             self.detector.start_s = t_s  # settle again; what was declared stays declared
         self._restart_at_s = t_s + cfg.detector.settle_s
 
-    def _bridge_gap(self, previous_s: float, gap_steps: int, imu: np.ndarray) -> None:
-        """Predict across missing IMU samples with the last controls (no measurement)."""
+    def _bridge_gap(self, start_s: float, steps: int) -> None:
+        """Predict ``steps`` filter steps after ``start_s`` with the last controls, no update.
+
+        Across missing samples, or up to the next sample of a stream slower than the step.
+        """
         assert self.estimator is not None and self.estimate is not None
         assert self._controls is not None
         nothing = Observation(np.full(6, np.nan))  # non-finite: the UKF skips its update
         self._nav = None
-        for k in range(1, gap_steps + 1):
+        self.counters.predict_steps += steps
+        for k in range(1, steps + 1):
             self.estimate = self.estimator.step(
-                self.estimate, previous_s + k * IMU_PERIOD_S, self._controls, nothing
+                self.estimate, start_s + k * IMU_PERIOD_S, self._controls, nothing
             )
 
     @property
@@ -423,6 +520,16 @@ class EstimatorPipeline:
         self.estimate = rebased.carried_over(self.estimate, self.estimator)
         self.estimator = rebased
 
+    def _actuators_stale(self, t_s: float) -> bool:
+        """Whether the servo outputs are older than a few of their own stream's intervals."""
+        if self._actuator_s is None:
+            return True
+        limit_s = self.config.actuator_timeout_s
+        interval_s = self.actuator_rate.interval_s
+        if interval_s is not None:
+            limit_s = max(limit_s, self.config.actuator_stale_intervals * interval_s)
+        return t_s - self._actuator_s > limit_s
+
     def _step(self, t_s: float, imu: np.ndarray, gps: np.ndarray | None) -> EstimateOutput:
         assert self.estimator is not None and self.detector is not None
         assert self.estimate is not None
@@ -445,11 +552,13 @@ class EstimatorPipeline:
         north, east, down = (float(c) for c in nav.position_ned_m)
         lat, lon, alt = self._frame().to_geodetic(north, east, down)
         modes = self.estimator.modes  # a decision may re-base the bank for the next step
-        stale = self._actuator_s is None or t_s - self._actuator_s > self.config.actuator_timeout_s
-        if stale:
+        if self._actuators_stale(t_s):
             # the model's controls are old: its predictions (and so the modes' odds) are not
             # to be trusted; hold decisions until servo outputs arrive again
             self.counters.stale_actuator_steps += 1
+            events = []
+        elif self.imu_too_slow():
+            self.counters.slow_imu_steps += 1
             events = []
         else:
             events = self._decide(t_s, est, imu)
