@@ -23,6 +23,7 @@ ALLOWED = (
     ("immukf_sitl/models/", {"immukf_sitl.models", "immukf_sitl.errors"}),
     ("immukf_sitl/samples.py", set()),
     ("immukf_sitl/errors.py", set()),
+    ("immukf_sitl/vehicle.py", {"immukf_sitl.errors"}),
     ("immukf_sitl/fault_kinds.py", set()),
     (
         "immukf_sitl/scenario.py",
@@ -66,6 +67,18 @@ ALLOWED = (
             "immukf_sitl.scenario",
             "immukf_sitl.errors",
             "immukf_sitl.options",
+            "immukf_sitl.vehicle",
+        },
+    ),  # fmt: skip
+    # the autopilots' logs read into the MAVLink adapter's FlightLog
+    (
+        "immukf_sitl/logs/",
+        {
+            "immukf_sitl.logs",
+            "immukf_sitl.mavlink",
+            "immukf_sitl.samples",
+            "immukf_sitl.errors",
+            "immukf_sitl.vehicle",
         },
     ),  # fmt: skip
     ("immukf_sitl/experiments/", {"immukf_sitl", "sim"}),
@@ -88,6 +101,7 @@ ALLOWED = (
 CONFINED = {
     "pymavlink": ("immukf_sitl/mavlink/wire.py",),
     "jsbsim": ("sim/driver.py",),
+    "pyulog": ("immukf_sitl/logs/ulog.py",),
     # campaigns run on a Dask cluster through one executor interface
     "dask": ("immukf_sitl/experiments/executor.py",),
     "distributed": ("immukf_sitl/experiments/executor.py",),

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from immukf_sitl.errors import UserError
-from immukf_sitl.logs.vehicle import vehicle_of_firmware, vehicle_of_mav_type
+from immukf_sitl.vehicle import vehicle_of_firmware, vehicle_of_mav_type
 from immukf_sitl.mavlink import codec
 from immukf_sitl.mavlink.sources import GPS_MESSAGES, StreamSelector
 from immukf_sitl.mavlink.tlog import TlogWriter
@@ -106,7 +106,7 @@ class FlightLog:
     kind : str
         ``tlog``, ``dataflash`` or ``ulog``.
     vehicle : str or None
-        What the log says flew (:mod:`immukf_sitl.logs.vehicle`), None when it does not say.
+        What the log says flew (:mod:`immukf_sitl.vehicle`), None when it does not say.
     vehicle_evidence : str
         Where ``vehicle`` came from, for messages (``HEARTBEAT type QUADROTOR``).
     imu_source : str
