@@ -25,7 +25,6 @@ import numpy as np
 from pyulog import ULog
 
 from immukf_sitl.errors import UserError
-from immukf_sitl.vehicle import FIXED_WING, MULTICOPTER, vehicle_of_mav_type
 from immukf_sitl.mavlink.flightlog import (
     Annotations,
     FlightLog,
@@ -33,6 +32,7 @@ from immukf_sitl.mavlink.flightlog import (
     scenario_annotation,
 )
 from immukf_sitl.samples import ActuatorSample, GpsSample, ImuSample
+from immukf_sitl.vehicle import FIXED_WING, MULTICOPTER, vehicle_of_mav_type
 
 #: File magic of every ULog, followed by the format version (1) and the start time (uint64 us)
 MAGIC = b"ULog\x01\x12\x35"

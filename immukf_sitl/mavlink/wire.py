@@ -17,6 +17,7 @@ import time
 os.environ["MAVLINK20"] = "1"
 
 from pymavlink import mavutil  # noqa: E402
+from pymavlink.DFReader import DFMessage, DFReader_binary  # noqa: E402, F401 (DataFlash logs)
 
 from immukf_sitl.errors import UserError  # noqa: E402
 
