@@ -97,5 +97,5 @@ def test_missing_tlog_is_a_one_line_error(tmp_path):
         capture_output=True, text=True, timeout=60,
     )  # fmt: skip
     assert out.returncode == 2
-    assert out.stderr.strip().endswith("nope.tlog: no such tlog")
+    assert out.stderr.strip().endswith("nope.tlog: no such log")
     assert "Traceback" not in out.stderr

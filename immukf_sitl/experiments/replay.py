@@ -1,6 +1,7 @@
-"""``immukf-sitl replay TLOG``: the estimator over a recorded flight log, as fast as it can.
+"""``immukf-sitl replay LOG``: the estimator over a recorded flight log, as fast as it can.
 
-Feeds the sensor stream of a flight tlog (see :mod:`immukf_sitl.mavlink.flightlog`) through the same
+Feeds the sensor stream of a flight log (a tlog, a DataFlash ``.bin`` or a ULog ``.ulg``, read by
+:mod:`immukf_sitl.logs.reader`) through the same
 pipeline ``serve`` runs, in recorded order, and prints the same summary as ``run``: faults (from
 the fault proxy's annotations), detections, false alarms, and, when the log holds the sim's
 truth, estimation errors.
@@ -26,7 +27,8 @@ from immukf_sitl.experiments.report import (
     plot_summary,
     summarize,
 )
-from immukf_sitl.mavlink.flightlog import FlightLog, read_flight_log
+from immukf_sitl.logs.reader import check_replayable, imu_rate_hz, read_log
+from immukf_sitl.mavlink.flightlog import FlightLog
 from immukf_sitl.mavlink.publish import probability_name
 from immukf_sitl.options import FilterOptions, add_json_argument
 from immukf_sitl.samples import ActuatorSample, GpsSample, ImuSample
@@ -83,16 +85,30 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the ``replay`` subcommand."""
     parser = subparsers.add_parser(
         "replay",
-        help="run the estimator over a recorded flight tlog and summarise",
+        help="run the estimator over a recorded flight log and summarise",
         description=(
-            "Feed a flight tlog (as written by `immukf-sitl run`: the sensor stream the "
-            "estimator received, the sim's truth and the fault proxy's annotations) through the "
-            "estimator as fast as possible, then print the same summary as `run`: faults, "
-            "detections with delays, false alarms and, when truth is in the log, estimation "
-            "errors."
+            "Feed a flight log through the estimator as fast as possible, then print the same "
+            "summary as `run`: faults, detections with delays, false alarms and, when truth is "
+            "in the log, estimation errors. The log is a MAVLink tlog (as `immukf-sitl run` "
+            "writes it, with the sim's truth and the fault proxy's annotations, or any "
+            "autopilot's or ground station's), an ArduPilot DataFlash .bin or a PX4 ULog .ulg, "
+            "at its logged rate (at least 20 Hz of IMU). A log that is not of a fixed-wing "
+            "aircraft, or lacks an IMU, servo or GPS stream, is refused in one line."
         ),
     )
-    parser.add_argument("tlog", help="flight tlog to replay")
+    parser.add_argument(
+        "tlog",
+        metavar="LOG",
+        help="flight log to replay: a MAVLink tlog, an ArduPilot DataFlash .bin or a PX4 ULog "
+        ".ulg (told apart by their content)",
+    )
+    parser.add_argument(
+        "--imu",
+        type=int,
+        default=None,
+        metavar="N",
+        help="IMU instance to use (0 first; default: the first IMU stream in the log)",
+    )
     add_json_argument(parser)
     parser.add_argument("--plot", default=None, help="also write a PNG of the mode probabilities")
     FilterOptions.add_arguments(parser)
@@ -104,13 +120,16 @@ def _main(args: argparse.Namespace) -> int:
     pipeline = options.pipeline()
     if args.plot and not Path(args.plot).resolve().parent.is_dir():
         raise UserError(f"--plot {args.plot}: no such directory")
-    log = read_flight_log(args.tlog)
-    n_imu = sum(isinstance(s, ImuSample) for s in log.stream)
-    if n_imu == 0:
-        raise UserError(
-            f"{args.tlog}: no HIGHRES_IMU in it ({log.bad_records} bad records): not a flight tlog"
-        )
-    print(f"replay: {args.tlog}: {len(log.stream)} samples", file=sys.stderr)
+    if args.imu is not None and args.imu < 0:
+        raise UserError(f"--imu: expected an instance >= 0, got {args.imu}")
+    log = read_log(args.tlog, args.imu)
+    check_replayable(log, args.tlog, pipeline.config.min_imu_rate_hz)
+    pipeline.imu_label = log.imu_source or "IMU"
+    print(
+        f"replay: {args.tlog}: {log.kind}, {len(log.stream)} samples, IMU {log.imu_source} "
+        f"at {imu_rate_hz(log):.0f} Hz",
+        file=sys.stderr,
+    )
     result = replay(log, pipeline, progress=True)
     name = log.scenario or Path(args.tlog).stem
     summary = dataclasses.replace(

@@ -359,10 +359,12 @@ def read_ulog(path: str | Path, imu: int | None = None) -> FlightLog:
         log.imu_source = next(iter(streams), "")
     try:
         imu_samples = _imu_samples(log.imu_source, streams[log.imu_source]) if streams else []
-        stream = [*imu_samples, *_gps_samples(ulog), *_actuator_samples(ulog)]
+        # at equal times a step's servo outputs and fix come before the IMU sample that steps
+        # the filter (the order the sim and the autopilots send them in)
+        stream = [*_gps_samples(ulog), *_actuator_samples(ulog), *imu_samples]
     except KeyError as exc:  # a topic of another layout than PX4's
         raise UserError(f"{path}: a ULog topic lacks the field {exc}") from None
-    log.stream = sorted(stream, key=lambda s: s.time_s)
+    log.stream = sorted(stream, key=lambda s: s.time_s)  # stable: the order above at ties
     log.vehicle, log.vehicle_evidence = _vehicle(ulog, params)
     texts = [(m.timestamp, m.message) for m in ulog.logged_messages]
     texts += [(m.timestamp, m.message) for ms in ulog.logged_messages_tagged.values() for m in ms]

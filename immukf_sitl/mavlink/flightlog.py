@@ -25,13 +25,13 @@ from pathlib import Path
 import numpy as np
 
 from immukf_sitl.errors import UserError
-from immukf_sitl.vehicle import vehicle_of_firmware, vehicle_of_mav_type
 from immukf_sitl.mavlink import codec
 from immukf_sitl.mavlink.sources import GPS_MESSAGES, StreamSelector
 from immukf_sitl.mavlink.tlog import TlogWriter
 from immukf_sitl.mavlink.wire import MavMessage, mavlink, open_tlog_reader
 from immukf_sitl.samples import ActuatorSample, GpsSample, ImuSample, TruthSample
 from immukf_sitl.scenario import FaultSpec
+from immukf_sitl.vehicle import vehicle_of_firmware, vehicle_of_mav_type
 
 FAULT_TEXT = re.compile(
     r"^FAULT (?P<end>END )?(?P<kind>\w+) (?P<channels>[xyzpqr+]+) t=(?P<t>[-\d.]+)"

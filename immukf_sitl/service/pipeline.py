@@ -33,6 +33,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from immukf_sitl.estimation.fault_modes import FaultMode, failure_marginals
+from immukf_sitl.models.aero import AeroModel
 from immukf_sitl.models.earth import LocalGeodetic, NedOrigin
 from immukf_sitl.models.params import AircraftParams
 from immukf_sitl.models.sensors import IMU_PERIOD_S, SensorSpec
@@ -50,6 +51,10 @@ from immukf_sitl.service.filters import (
     build_estimator,
 )
 from immukf_sitl.service.stream_rate import StreamRate
+
+#: airspeeds tried, in turn, for the warm-up's steady flight (any aircraft in the params'
+#: envelope trims at one of them; the filter itself aligns on the data, not on a trim)
+WARM_UP_SPEEDS_MPS = (25.0, 30.0, 35.0, 20.0, 40.0, 45.0, 50.0, 15.0)
 
 #: SERVO_OUTPUT_RAW's ``time_usec`` is a uint32: actuator times repeat modulo this (71.6 min).
 ACTUATOR_TIME_WRAP_S = 2**32 * 1e-6
@@ -147,6 +152,24 @@ class EstimateOutput:
     step_us: float
 
 
+def _warm_up_state(model: AeroModel) -> tuple[np.ndarray, np.ndarray]:
+    """A steady flight to compile the kernels on: a trim at the first speed that has one.
+
+    A heavy or slow airframe trims at none of the first speeds; with no trim at all (a params
+    file far outside any envelope) the warm-up steps level flight at mid controls, which
+    compiles the same kernels.
+    """
+    for speed_mps in WARM_UP_SPEEDS_MPS:
+        try:
+            return model.trim(speed_mps)
+        except RuntimeError:
+            continue
+    x0 = np.zeros(12)
+    x0[3] = WARM_UP_SPEEDS_MPS[0]
+    limits = model.params.actuators
+    return x0, 0.5 * (np.asarray(limits.lower_limits) + np.asarray(limits.upper_limits))
+
+
 class EstimatorPipeline:
     """Samples in, :class:`EstimateOutput` per IMU sample out (after alignment).
 
@@ -203,10 +226,8 @@ class EstimatorPipeline:
         The first step compiles the model's numba kernels (seconds on a cold cache); a service
         does it before it reports ready, so that its first real sample is not late.
         """
-        from immukf_sitl.models.aero import AeroModel
-
         origin = NedOrigin(0.0, 0.0, 100.0)
-        x0, u0 = AeroModel(self.params, origin).trim(25.0)
+        x0, u0 = _warm_up_state(AeroModel(self.params, origin))
         cfg = self.config
         estimator = build_estimator(
             cfg.variant, self.params, origin, cfg.true_mode, cfg.sensors, cfg.filter_model
@@ -361,7 +382,7 @@ class EstimatorPipeline:
     def imu_too_slow(self) -> bool:
         """Whether the IMU streams below the rate detection needs (decisions are held)."""
         rate = self.imu_rate.rate_hz
-        return rate is not None and rate < self.config.min_imu_rate_hz
+        return rate is not None and rate < 0.95 * self.config.min_imu_rate_hz  # 5 %: jitter
 
     def _note_rate(self) -> None:
         """Say once that the IMU is too slow for detection, with the rate it needs."""
