@@ -1,9 +1,10 @@
 """``immukf-sitl serve``: the estimator service on MAVLink.
 
-Consumes HIGHRES_IMU, GPS_RAW_INT and SERVO_OUTPUT_RAW from ``--in``, runs the IMM-UKF
+Consumes any autopilot's IMU stream (:mod:`immukf_sitl.mavlink.sources`), GPS_RAW_INT or
+GPS2_RAW and SERVO_OUTPUT_RAW from ``--in``, runs the IMM-UKF
 (:class:`~immukf_sitl.service.pipeline.EstimatorPipeline`) once per IMU sample and publishes the
 fused state, the mode probabilities and detection events to every ``--out`` (a ground station).
-On its input link it answers each HIGHRES_IMU with a SYSTEM_TIME whose ``time_boot_ms`` is that
+On its input link it answers each IMU sample with a SYSTEM_TIME whose ``time_boot_ms`` is that
 sample's time: the lock-step acknowledgement the sim waits for.
 
 It never crashes on what arrives: bad CRCs, malformed or non-finite fields, out-of-order or
@@ -15,7 +16,7 @@ uses only correctly signed frames from its input; unsigned frames, wrong signatu
 are counted (:mod:`immukf_sitl.mavlink.signing`) and never reach the filter.
 
 Each UDP datagram is read with its kernel receive time and parsed on its own (a truncated frame
-never swallows the next datagram). The lag is the time from the arrival of a HIGHRES_IMU
+never swallows the next datagram). The lag is the time from the arrival of an IMU
 datagram at the socket (queueing included) to the moment the ATTITUDE computed from it has left,
 for every sample that publishes one.
 """
@@ -39,6 +40,7 @@ from immukf_sitl.errors import UserError
 from immukf_sitl.mavlink import codec
 from immukf_sitl.mavlink.publish import OutputRates, Publisher, heartbeat
 from immukf_sitl.mavlink.signing import LinkSigning, load_key
+from immukf_sitl.mavlink.sources import GPS_MESSAGES, StreamSelector, rate_hint
 from immukf_sitl.mavlink.tlog import TlogWriter
 from immukf_sitl.mavlink.wire import (
     ESTIMATOR_COMPONENT_ID,
@@ -70,11 +72,15 @@ from immukf_sitl.service.timing import (
 HELP = """\
 Run the IMM-UKF estimator on a MAVLink stream and publish its results.
 
-Consumes HIGHRES_IMU (100 Hz), GPS_RAW_INT and SERVO_OUTPUT_RAW from --in, runs one filter
-step per IMU sample, and publishes to every --out: HEARTBEAT, ATTITUDE, ATTITUDE_QUATERNION,
+Consumes an IMU stream (HIGHRES_IMU, RAW_IMU, SCALED_IMU, SCALED_IMU2 or SCALED_IMU3, at
+20 Hz to 1 kHz; --imu picks the instance), GPS_RAW_INT or GPS2_RAW and SERVO_OUTPUT_RAW from
+--in, runs the filter at its 10 ms step on the IMU's timestamps (a slower IMU's sample is a
+longer step, a faster one is averaged over each step; servo outputs are stale after three of
+their own intervals; below 20 Hz of IMU decisions are held and a STATUSTEXT says so), and
+publishes to every --out: HEARTBEAT, ATTITUDE, ATTITUDE_QUATERNION,
 GLOBAL_POSITION_INT (fused), NAMED_VALUE_FLOAT MP_NONE, MP_AX, MP_AY, MP_AZ, MP_P, MP_Q, MP_R
 (mode probabilities), NAMED_VALUE_INT IMM_FAULT and STATUSTEXT on each detection and clearing.
-Each HIGHRES_IMU is acknowledged up the input link with a SYSTEM_TIME (lock-step with the sim).
+Each IMU sample is acknowledged up the input link with a SYSTEM_TIME (lock-step with the sim).
 Bad packets, out-of-order samples and gaps are counted in the stats line, never fatal.
 
 example:
@@ -136,6 +142,8 @@ class EstimatorService:
         Sign what is sent and accept only correctly signed input (None: signing off).
     report_window_s : float
         Sim time per entry of ``windows`` in :meth:`summary`.
+    streams : StreamSelector, optional
+        Which IMU and GPS streams to follow (default: the first of each that arrives).
     """
 
     def __init__(
@@ -149,6 +157,7 @@ class EstimatorService:
         stats_interval_s: float = 5.0,
         signing: LinkSigning | None = None,
         report_window_s: float = REPORT_WINDOW_S,
+        streams: StreamSelector | None = None,
     ) -> None:
         self.pipeline = pipeline
         self.inbound = inbound
@@ -165,6 +174,7 @@ class EstimatorService:
                 signing.enable(inbound, ESTIMATOR_LINK_ID)
             signing.watch(self._mav)
         self._parser = self._new_parser()
+        self.streams = streams if streams is not None else StreamSelector()
         self._reader = DatagramReader(inbound) if is_udp(inbound) else None
         self._tlog = TlogWriter(tlog_path) if tlog_path else None
         self._clock_s = 0.0
@@ -227,10 +237,16 @@ class EstimatorService:
             self.stats.ignored += 1  # our own traffic looped back
             return True
         try:
-            if kind == "HIGHRES_IMU":
-                self._on_imu(codec.decode_highres_imu(msg), msg, received_ns)
-            elif kind == "GPS_RAW_INT":
-                self.pipeline.on_gps(codec.decode_gps_raw_int(msg))
+            if kind in codec.IMU_MESSAGES:
+                if self.streams.follows_imu(msg):
+                    self._on_imu(codec.decode_imu(msg), msg, received_ns)
+                else:
+                    self.stats.ignored += 1  # another IMU, or the same one in another message
+            elif kind in GPS_MESSAGES:
+                if self.streams.follows_gps(msg):
+                    self.pipeline.on_gps(codec.decode_gps_raw_int(msg))
+                else:
+                    self.stats.ignored += 1
             elif kind == "SERVO_OUTPUT_RAW":
                 self.pipeline.on_actuators(codec.decode_servo_output_raw(msg))
             elif kind == "HEARTBEAT":
@@ -242,12 +258,24 @@ class EstimatorService:
                 self.stats.ignored += 1
         except codec.DecodeError:
             self.stats.decode_errors += 1
-            if kind == "HIGHRES_IMU":
-                self._acknowledge(msg.time_usec * 1e-6)
+            if kind in codec.IMU_MESSAGES:  # processed (and dropped): the sim may go on
+                stamp_s = msg.time_usec * 1e-6 if hasattr(msg, "time_usec") else None
+                self._acknowledge(stamp_s if stamp_s is not None else msg.time_boot_ms * 1e-3)
         return True
 
+    def _say_notices(self) -> None:
+        """The pipeline's notices, once each: on stderr and as STATUSTEXT to the stations."""
+        for text in self.pipeline.take_notices():
+            self._say(f"serve: {text}")
+            self._publish([codec.statustext_message(f"IMM: {text}", mavlink.MAV_SEVERITY_WARNING)])
+
     def _on_imu(self, sample, msg: MavMessage, received_ns: int) -> None:
+        if not self.pipeline.counters.imu_samples:
+            self.pipeline.imu_label = self.streams.imu_source
+            self.pipeline.rate_hint = rate_hint(msg.get_type())
         out = self.pipeline.on_imu(sample)
+        if self.pipeline.notices:
+            self._say_notices()
         self._last_data_wall = time.monotonic()
         attitude_sent_ns = None
         if out is not None:
@@ -386,6 +414,11 @@ class EstimatorService:
             "aligned": self.pipeline.aligned,
             "counters": vars(c).copy(),
             "received": dict(self.stats.received),
+            "imu_source": self.streams.imu_source,
+            "imu_sources": self.streams.imu_sources(),
+            "imu_rate_hz": self.pipeline.imu_rate.rate_hz,
+            "servo_rate_hz": self.pipeline.actuator_rate.rate_hz,
+            "gps_rate_hz": self.pipeline.gps_rate.rate_hz,
             "bad_packets": self.stats.bad_packets,
             "decode_errors": self.stats.decode_errors,
             "ignored": self.stats.ignored,
@@ -468,6 +501,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="run under SCHED_FIFO at PRIO (1-99; Linux, needs CAP_SYS_NICE): the filter step "
         "preempts ordinary processes as flight software's would (docs/performance.md)",
     )
+    parser.add_argument(
+        "--imu",
+        type=int,
+        default=None,
+        metavar="N",
+        help="IMU instance to follow (0 first: RAW_IMU/HIGHRES_IMU id N, SCALED_IMU2 is 1, "
+        "SCALED_IMU3 2; default: the first IMU stream that arrives)",
+    )
     add_signing_argument(parser)
     add_json_argument(parser, "the statistics at exit")
     FilterOptions.add_arguments(parser)
@@ -488,6 +529,8 @@ def _main(args: argparse.Namespace) -> int:
     signing = LinkSigning(load_key(args.signing_key)) if args.signing_key else None
     if args.realtime_priority is not None and not 1 <= args.realtime_priority <= 99:
         raise UserError(f"--realtime-priority: expected 1..99, got {args.realtime_priority}")
+    if args.imu is not None and args.imu < 0:
+        raise UserError(f"--imu: expected an instance >= 0, got {args.imu}")
     options = FilterOptions.from_args(args)
     pipeline = options.pipeline()
     out_urls = args.out_url or [DEFAULT_OUT]
@@ -516,6 +559,7 @@ def _main(args: argparse.Namespace) -> int:
         stats_interval_s=args.stats_interval,
         signing=signing,
         report_window_s=args.report_window,
+        streams=StreamSelector(args.imu),
     )
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: service.stop())

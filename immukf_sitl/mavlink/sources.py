@@ -18,6 +18,13 @@ from immukf_sitl.mavlink.wire import MavMessage
 GPS_MESSAGES = ("GPS_RAW_INT", "GPS2_RAW")
 
 
+def rate_hint(kind: str) -> str:
+    """What raises an IMU message's rate on the autopilot that sends it."""
+    if kind == "HIGHRES_IMU":
+        return "PX4: MAV_n_MODE Onboard, or SET_MESSAGE_INTERVAL"
+    return "ArduPilot: raise SRn_RAW_SENS, or SET_MESSAGE_INTERVAL"
+
+
 def imu_label(kind: str, instance: int) -> str:
     """How reports name an IMU stream: ``RAW_IMU id 0``, ``SCALED_IMU2``."""
     return kind if kind.startswith("SCALED_IMU") else f"{kind} id {instance}"
