@@ -67,7 +67,7 @@ def main() -> int:
     logs = [read_flight_log(path) for path in args.flights]
     hours = sum(log.stream[-1].time_s - log.stream[0].time_s for log in logs) / 3600.0
     print(f"{options.variant}; {len(logs)} flights, {hours * 60:.1f} min")
-    print("| IMU Hz | servo Hz | faults identified (delay from onset, s) | false declarations |")
+    print("| IMU Hz | servo Hz | identified (delay after observable, s) | false declarations |")
     print("|---|---|---|---|")
     for imu_hz in args.imu_hz:
         for servo_hz in args.servo_hz:
