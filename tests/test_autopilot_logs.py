@@ -182,3 +182,26 @@ def test_a_file_that_is_no_flight_log_is_said_so(tmp_path):
     out = _replay_cli(junk)
     assert out.returncode == 2 and "Traceback" not in out.stderr
     assert "not a flight log" in out.stderr
+
+
+def test_an_airframe_heavier_than_the_default_warms_up_on_its_own_trim():
+    """A 33 kg Aerosonde (3x the default) has no steady flight at 25 m/s within its control
+    limits: the warm-up trims it where it has one, a true equilibrium, and never raises."""
+    import dataclasses
+
+    from immukf_sitl.models.aero import AeroModel
+    from immukf_sitl.models.earth import NedOrigin
+    from immukf_sitl.models.params import load_aircraft_params
+    from immukf_sitl.service.pipeline import EstimatorPipeline, _warm_up_state
+
+    params = load_aircraft_params()
+    heavy = dataclasses.replace(params, mass=dataclasses.replace(params.mass, mass_kg=33.0))
+    model = AeroModel(heavy, NedOrigin(0.0, 0.0, 100.0))
+    with pytest.raises(RuntimeError):
+        model.trim(25.0)
+    x0, u0 = _warm_up_state(model)
+    airspeed_mps = float(np.linalg.norm(x0[3:6]))
+    assert airspeed_mps > 25.0  # heavier: trims faster
+    derivatives = model.derivatives(0.0, x0, u0)
+    assert np.max(np.abs(derivatives[3:6])) < 1e-5 and np.max(np.abs(derivatives[9:12])) < 1e-5
+    EstimatorPipeline(heavy).warm_up()
