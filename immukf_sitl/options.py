@@ -24,6 +24,7 @@ from immukf_sitl.errors import UserError
 from immukf_sitl.estimation.fault_modes import FAULT_SIGNATURES, FaultMode
 from immukf_sitl.models.params import load_aircraft_params
 from immukf_sitl.models.sensors import SensorSpec
+from immukf_sitl.models.servo_map import ControlMap, load_servo_map
 from immukf_sitl.scenario import load_sensors
 from immukf_sitl.service.detection import DetectorConfig
 from immukf_sitl.service.filter_models import FILTER_MODELS, FilterModel, PaperModel, filter_model
@@ -124,6 +125,9 @@ class FilterOptions:
         sheet (``--sensors FILE``), never a simulation's true biases.
     sensors_path : str or None
         The file ``sensors`` came from.
+    servo_map_path : str or None
+        ``--servo-map``: ArduPilot's SERVOn_* parameters of the aircraft (None: the vehicle's
+        or the log's own, else the params file's channel map).
     """
 
     variant: str = "imm"
@@ -133,6 +137,7 @@ class FilterOptions:
     params_path: str | None = None
     sensors: SensorSpec = field(default_factory=SensorSpec)
     sensors_path: str | None = None
+    servo_map_path: str | None = None
 
     #: (flag, record, attribute, help): the numeric options, each written once
     _NUMERIC = (
@@ -224,6 +229,16 @@ class FilterOptions:
             "bias sigmas the filter assumes (default: Beard & McLain's; `run` passes the "
             "scenario's own)",
         )
+        group.add_argument(
+            "--servo-map",
+            dest="servo_map_path",
+            default=None,
+            metavar="FILE",
+            help="ArduPilot parameter file (.parm/.param, NAME VALUE or NAME,VALUE per line, or "
+            "YAML) with SERVOn_FUNCTION/MIN/TRIM/MAX/REVERSED and MIXING_GAIN: which output "
+            "drives which surface, elevons and V-tails mixed (default: the SERVOn_* the vehicle "
+            "answers or the log carries, else the params file's channels)",
+        )
 
     @classmethod
     def from_args(cls, args: argparse.Namespace) -> FilterOptions:
@@ -259,6 +274,9 @@ class FilterOptions:
         sensors = SensorSpec()
         if args.sensors_path is not None:
             sensors = load_sensors(args.sensors_path).spec_sheet()
+        servo_map_path = getattr(args, "servo_map_path", None)
+        if servo_map_path is not None:
+            load_servo_map(servo_map_path)  # a bad or incomplete map: one line, before any step
         return cls(
             args.variant,
             true_mode,
@@ -267,6 +285,7 @@ class FilterOptions:
             args.params_path,
             sensors,
             args.sensors_path,
+            servo_map_path,
         )
 
     def pipeline(self) -> EstimatorPipeline:
@@ -278,7 +297,11 @@ class FilterOptions:
             detector=self.detector,
             sensors=self.sensors,
         )
-        return EstimatorPipeline(load_aircraft_params(self.params_path), config)
+        params = load_aircraft_params(self.params_path)
+        pipeline = EstimatorPipeline(params, config)
+        if self.servo_map_path is not None:
+            pipeline.control_map = ControlMap(load_servo_map(self.servo_map_path), params)
+        return pipeline
 
     def to_argv(self) -> list[str]:
         """The same options as command-line arguments (``run`` passes them to ``serve``)."""
@@ -293,6 +316,8 @@ class FilterOptions:
             argv += ["--params", self.params_path]
         if self.sensors_path is not None:
             argv += ["--sensors", self.sensors_path]
+        if self.servo_map_path is not None:
+            argv += ["--servo-map", self.servo_map_path]
         return argv
 
 

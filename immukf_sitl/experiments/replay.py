@@ -30,6 +30,12 @@ from immukf_sitl.experiments.report import (
 from immukf_sitl.logs.reader import check_replayable, imu_rate_hz, read_log
 from immukf_sitl.mavlink.flightlog import FlightLog
 from immukf_sitl.mavlink.publish import probability_name
+from immukf_sitl.models.servo_map import (
+    ControlMap,
+    ServoMap,
+    control_map_source,
+    has_servo_functions,
+)
 from immukf_sitl.options import FilterOptions, add_json_argument
 from immukf_sitl.samples import ActuatorSample, GpsSample, ImuSample
 from immukf_sitl.service.pipeline import EstimateOutput, EstimatorPipeline
@@ -125,9 +131,13 @@ def _main(args: argparse.Namespace) -> int:
     log = read_log(args.tlog, args.imu)
     check_replayable(log, args.tlog, pipeline.config.min_imu_rate_hz)
     pipeline.imu_label = log.imu_source or "IMU"
+    if options.servo_map_path is None and has_servo_functions(log.params):
+        pipeline.control_map = ControlMap(
+            ServoMap.from_params(log.params, f"{args.tlog}'s SERVOn_* parameters"), pipeline.params
+        )
     print(
         f"replay: {args.tlog}: {log.kind}, {len(log.stream)} samples, IMU {log.imu_source} "
-        f"at {imu_rate_hz(log):.0f} Hz",
+        f"at {imu_rate_hz(log):.0f} Hz, servo map: {control_map_source(pipeline.control_map)}",
         file=sys.stderr,
     )
     result = replay(log, pipeline, progress=True)

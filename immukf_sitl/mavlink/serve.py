@@ -39,6 +39,7 @@ from typing import TextIO
 from immukf_sitl.errors import UserError
 from immukf_sitl.mavlink import codec
 from immukf_sitl.mavlink.publish import OutputRates, Publisher, heartbeat
+from immukf_sitl.mavlink.servo_params import ServoParamRequest
 from immukf_sitl.mavlink.signing import LinkSigning, load_key
 from immukf_sitl.mavlink.sources import GPS_MESSAGES, StreamSelector, rate_hint
 from immukf_sitl.mavlink.tlog import TlogWriter
@@ -54,6 +55,7 @@ from immukf_sitl.mavlink.wire import (
     is_udp,
     mavlink,
 )
+from immukf_sitl.models.servo_map import ControlMap, control_map_source
 from immukf_sitl.options import (
     FilterOptions,
     add_json_argument,
@@ -109,6 +111,8 @@ class ServiceStats:
     ignored: int = 0
     send_errors: int = 0
     pack_errors: int = 0
+    #: servo outputs held back while the vehicle's SERVOn_* parameters were being asked for
+    servo_before_map: int = 0
     step_us: deque = field(default_factory=lambda: deque(maxlen=STATS_WINDOW))
     lag_us: deque = field(default_factory=lambda: deque(maxlen=LAG_WINDOW))
     events: list = field(default_factory=list)
@@ -183,6 +187,10 @@ class EstimatorService:
         self._last_data_wall = 0.0
         self._last_output: EstimateOutput | None = None
         self._stop = False
+        #: an ArduPilot vehicle's SERVOn_* parameters, asked for unless --servo-map gave a map
+        self.servo_params: ServoParamRequest | None = (
+            None if isinstance(pipeline.control_map, ControlMap) else ServoParamRequest()
+        )
 
     # -- receiving -------------------------------------------------------------------------
 
@@ -248,8 +256,17 @@ class EstimatorService:
                 else:
                     self.stats.ignored += 1
             elif kind == "SERVO_OUTPUT_RAW":
-                self.pipeline.on_actuators(codec.decode_servo_output_raw(msg))
+                if self._awaiting_servo_map():
+                    self.stats.servo_before_map += 1
+                else:
+                    self.pipeline.on_actuators(codec.decode_servo_output_raw(msg))
+            elif kind == "PARAM_VALUE":
+                if self.servo_params is not None:
+                    self.servo_params.on_param_value(msg)
+                    self.servo_map_tick()
             elif kind == "HEARTBEAT":
+                if self.servo_params is not None:
+                    self.servo_params.on_heartbeat(msg)
                 # route the vehicle's heartbeat to the ground stations: QGroundControl creates a
                 # vehicle only from a component-1 heartbeat, then shows our messages beside it
                 for conn in self.outbound:
@@ -262,6 +279,42 @@ class EstimatorService:
                 stamp_s = msg.time_usec * 1e-6 if hasattr(msg, "time_usec") else None
                 self._acknowledge(stamp_s if stamp_s is not None else msg.time_boot_ms * 1e-3)
         return True
+
+    def _awaiting_servo_map(self) -> bool:
+        """Whether an ArduPilot vehicle's servo parameters are still being asked for."""
+        request = self.servo_params
+        return request is not None and request.target is not None and not request.done
+
+    def servo_map_tick(self, now_s: float | None = None) -> None:
+        """Ask for the servo parameters still missing; once all are in, use their map.
+
+        A map that leaves a control surface unassigned raises
+        :class:`~immukf_sitl.models.servo_map.ServoMapError` (one line, exit 2): the filter
+        cannot run on controls it cannot read.
+        """
+        request = self.servo_params
+        if request is None or request.target is None:
+            return
+        for msg in request.requests(time.monotonic() if now_s is None else now_s):
+            self._send(self.inbound, msg.pack(self._mav))
+        if not request.done:
+            return
+        self.servo_params = None
+        servo_map = request.servo_map()
+        if servo_map is None:
+            short = "IMM: no SERVOn_* answered, params file's map"
+            text = (
+                "the vehicle answered no SERVOn_* parameter: using "
+                f"{control_map_source(self.pipeline.control_map)} (--servo-map FILE sets them)"
+            )
+        else:
+            self.pipeline.control_map = ControlMap(servo_map, self.pipeline.params)
+            short = "IMM: servo map from the vehicle's SERVOn_*"
+            text = "servo map from " + ", ".join(
+                f"SERVO{o.channel} {o.name}" for o in servo_map.outputs
+            )
+        self._say(f"serve: {text}")
+        self._publish([codec.statustext_message(short, mavlink.MAV_SEVERITY_INFO)])
 
     def _say_notices(self) -> None:
         """The pipeline's notices, once each: on stderr and as STATUSTEXT to the stations."""
@@ -361,6 +414,7 @@ class EstimatorService:
             if self.poll(0.2):
                 last_input = time.monotonic()
             now = time.monotonic()
+            self.servo_map_tick(now)
             if now - self._last_wall_heartbeat >= 1.0 and now - self._last_data_wall > 1.0:
                 self._publish([heartbeat()])  # no data flowing: still visible to a GCS
                 self._last_wall_heartbeat = now
@@ -424,6 +478,8 @@ class EstimatorService:
             "ignored": self.stats.ignored,
             "send_errors": self.stats.send_errors,
             "pack_errors": self.stats.pack_errors,
+            "servo_map": control_map_source(self.pipeline.control_map),
+            "servo_before_map": self.stats.servo_before_map,
             **self.stats.timing(),
             "lag_from": "kernel receive" if self._kernel_stamps() else "socket read",
             "signing": {

@@ -35,8 +35,9 @@ import numpy as np
 from immukf_sitl.estimation.fault_modes import FaultMode, failure_marginals
 from immukf_sitl.models.aero import AeroModel
 from immukf_sitl.models.earth import LocalGeodetic, NedOrigin
-from immukf_sitl.models.params import AircraftParams
+from immukf_sitl.models.params import Actuators, AircraftParams
 from immukf_sitl.models.sensors import IMU_PERIOD_S, SensorSpec
+from immukf_sitl.models.servo_map import ControlMap
 from immukf_sitl.samples import ActuatorSample, GpsSample, ImuSample
 from immukf_sitl.service.alignment import NavSolution, align
 from immukf_sitl.service.declared_set import DeclaredSetDetector
@@ -189,6 +190,8 @@ class EstimatorPipeline:
         self.estimate: VariantEstimate | None = None
         self.detector: FaultDetector | DeclaredSetDetector | None = None
         self._namer = FaultNamer(self.config.sensors.imu.sigmas)
+        #: SERVO_OUTPUT_RAW -> controls: the params file's channels, or an autopilot's servo map
+        self.control_map: Actuators | ControlMap = params.actuators
         self._controls: np.ndarray | None = None
         self._gps_queue: deque[GpsSample] = deque(maxlen=16)
         self._last_imu_s: float | None = None
@@ -273,7 +276,7 @@ class EstimatorPipeline:
             counters.actuator_out_of_order += 1
             return
         try:
-            self._controls = self.params.actuators.pwm_to_controls(sample.pwm_us)
+            self._controls = self.control_map.pwm_to_controls(sample.pwm_us)
             self._actuator_s = time_s
             self.actuator_rate.add(time_s)
         except ValueError:
