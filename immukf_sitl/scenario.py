@@ -49,6 +49,9 @@ A wrong file gets one line naming the file, the field and what was expected
         kind: rudder_doublet       # rudder_doublet | aileron_doublet | elevator_doublet
         amplitude_rad: 0.1         # first half +amplitude, second half -amplitude
         duration_s: 2.0
+    profile: native                # optional: native | ardupilot | px4, or a mapping:
+                                   # {name: ardupilot, imu_hz: 50, servo_hz: 10, gps_hz: 5,
+                                   #  servo_layout: conventional | elevon | vtail}
     expect:                        # optional: what a run should report
       detect: q                    # fault mode name ("none" for a fault-free flight)
       within_s: 1.0                # detection delay from the fault becoming observable
@@ -71,6 +74,7 @@ from immukf_sitl.models.airframe import AirframeSpec, AirframeUncertainty, scala
 from immukf_sitl.models.params import load_aircraft_params
 from immukf_sitl.models.sensors import GpsSpec, ImuSpec, SensorSpec
 from immukf_sitl.models.wind import TURBULENCE_LEVELS, WindSpec
+from immukf_sitl.stream_profile import StreamProfile
 from immukf_sitl.yaml_fields import YamlFields
 
 MANOEUVRE_KINDS = ("elevator_doublet", "aileron_doublet", "rudder_doublet")
@@ -216,6 +220,7 @@ class Scenario:
     expect: ExpectSpec | None = None
     description: str = ""
     path: str = ""
+    profile: StreamProfile = field(default_factory=StreamProfile)
 
 
 # -- parsing -------------------------------------------------------------------------------------
@@ -393,6 +398,26 @@ def _wind(r: YamlFields) -> WindSpec:
     return wind
 
 
+def _profile(path: str, r: YamlFields) -> StreamProfile:
+    """The ``profile:`` field: a name, or a mapping with the name and its rates."""
+    raw = r.raw("profile", "native")
+    if isinstance(raw, str):
+        raw = {"name": raw}
+    p = _reader(path, "profile", raw)
+    values = {
+        "name": p.string("name", "native"),
+        "servo_layout": p.string("servo_layout", "conventional"),
+    }
+    for key in ("imu_hz", "servo_hz", "gps_hz"):
+        if p.raw(key, None) is not None:
+            values[key] = p.number(key)
+    p.done()
+    try:
+        return StreamProfile(**values)
+    except ValueError as exc:
+        raise ScenarioError(f"{path}: profile: {exc}") from None
+
+
 def parse_sensors(data: Any, path: str = "<sensors>") -> SensorSpec:
     """Validate a ``sensors:`` mapping (a scenario's block, or a ``--sensors`` file's content).
 
@@ -489,6 +514,7 @@ def parse_scenario(data: Any, path: str = "<scenario>") -> Scenario:
         manoeuvres=manoeuvres,
         expect=expect,
         path=path,
+        profile=_profile(path, r),
     )
     r.done()
     return scenario

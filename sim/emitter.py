@@ -40,6 +40,7 @@ With ``--signing-key FILE`` every frame is signed (MAVLink 2, pymavlink's signin
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import select
@@ -52,15 +53,7 @@ from pathlib import Path
 from types import FrameType
 
 from immukf_sitl.errors import UserError
-from immukf_sitl.mavlink.codec import (
-    gps_raw_int_message,
-    heartbeat_message,
-    highres_imu_message,
-    servo_output_raw_message,
-    statustext_message,
-    truth_message,
-    truth_wind_message,
-)
+from immukf_sitl.mavlink.codec import statustext_message, truth_message, truth_wind_message
 from immukf_sitl.mavlink.flightlog import scenario_annotation
 from immukf_sitl.mavlink.signing import LinkSigning, load_key
 from immukf_sitl.mavlink.tlog import TlogWriter
@@ -71,11 +64,9 @@ from immukf_sitl.mavlink.wire import (
     SIM_SYSTEM_ID,
     ConnectionError_,
     MavConnection,
-    MavMessage,
     connect,
     mavlink,
 )
-from immukf_sitl.models.params import Actuators
 from immukf_sitl.models.sensors import IMU_PERIOD_S
 from immukf_sitl.options import (
     add_json_argument,
@@ -83,10 +74,11 @@ from immukf_sitl.options import (
     add_signing_argument,
     add_tlog_argument,
 )
-from immukf_sitl.samples import ActuatorSample
 from immukf_sitl.scenario import load_scenario
+from immukf_sitl.stream_profile import PROFILES, SERVO_LAYOUTS, StreamProfile
 from sim.flight import Flight, FlightRecord
-from sim.scenario_flight import flight_from_scenario
+from sim.profile_stream import ParamServer, ProfileStream
+from sim.scenario_flight import flight_from_scenario, profile_stream
 
 __all__ = [
     "DEFAULT_ACK_TIMEOUT_S",
@@ -96,7 +88,6 @@ __all__ = [
     "EmitterStats",
     "LockStep",
     "SimEmitter",
-    "StepEncoder",
     "register",
 ]
 
@@ -108,58 +99,6 @@ DEFAULT_WINDOW_STEPS = 10
 DEFAULT_ACK_TIMEOUT_S = 10.0
 #: Component id of the truth frames in the tlog (MAV_COMP_ID_USER1, a private-use id).
 TRUTH_COMPONENT_ID = mavlink.MAV_COMP_ID_USER1
-
-
-class StepEncoder:
-    """The MAVLink messages of one simulation record (no sockets, no state but the heartbeat).
-
-    Parameters
-    ----------
-    actuators : Actuators
-        Channel map and PWM maps of the aircraft (``params.actuators``).
-    heartbeat_period_s : float, optional
-        Sim time between HEARTBEATs (s).
-    """
-
-    def __init__(self, actuators: Actuators, heartbeat_period_s: float = 1.0) -> None:
-        self.actuators = actuators
-        self.heartbeat_period_s = float(heartbeat_period_s)
-        self._next_heartbeat_s = 0.0
-
-    def actuator_sample(self, record: FlightRecord) -> ActuatorSample:
-        """The record's controls as PWM per servo channel (1..16, 0 = unused)."""
-        by_channel = self.actuators.controls_to_pwm(record.controls)
-        pwm = [0] * 16
-        for channel, value in by_channel.items():
-            pwm[channel - 1] = value
-        return ActuatorSample(record.time_s, tuple(pwm))
-
-    def messages(self, record: FlightRecord) -> list[MavMessage]:
-        """What goes on the wire for this record, in sending order.
-
-        Returns
-        -------
-        list of MavMessage
-            HEARTBEAT (when due), GPS_RAW_INT (when the record has a fix), SERVO_OUTPUT_RAW,
-            HIGHRES_IMU.
-        """
-        out: list[MavMessage] = []
-        if record.time_s >= self._next_heartbeat_s - 1e-6:
-            out.append(heartbeat_message(mavlink.MAV_TYPE_FIXED_WING))
-            self._next_heartbeat_s += self.heartbeat_period_s
-        if record.gps is not None:
-            out.append(gps_raw_int_message(record.gps))
-        out.append(servo_output_raw_message(self.actuator_sample(record)))
-        out.append(highres_imu_message(record.imu))
-        return out
-
-    def scenario_message(self, name: str) -> MavMessage:
-        """STATUSTEXT naming the scenario (first record of a tlog; never sent)."""
-        return statustext_message(scenario_annotation(name))
-
-    def truth_message(self, record: FlightRecord) -> MavMessage:
-        """HIL_STATE_QUATERNION of the record's truth (for the tlog only)."""
-        return truth_message(record.truth.sample())
 
 
 class LockStep:
@@ -316,6 +255,8 @@ class SimEmitter:
         tlog: TlogWriter | None = None,
         progress_period_s: float = 3.0,
         scenario_name: str = "",
+        stream: ProfileStream | None = None,
+        params: ParamServer | None = None,
     ) -> None:
         if mode not in self.MODES:
             raise ValueError(f"mode: expected one of {', '.join(self.MODES)}, got {mode!r}")
@@ -329,7 +270,11 @@ class SimEmitter:
         self.tlog = tlog
         self.progress_period_s = float(progress_period_s)
         self.scenario_name = scenario_name
-        self.encoder = StepEncoder(flight.params.actuators)
+        native = stream is None
+        self.stream = ProfileStream(StreamProfile(), flight.params.actuators) if native else stream
+        self.params = params
+        #: the last step that carried an IMU message (the last one the estimator acknowledges)
+        self._last_imu_step = 0
         self.sent: Counter[str] = Counter()
         self.received: Counter[str] = Counter()
         self.stop_signal = 0
@@ -361,6 +306,10 @@ class SimEmitter:
             self.received[kind] += 1
             if kind == "SYSTEM_TIME" and message.get_srcComponent() == ESTIMATOR_COMPONENT_ID:
                 self.lockstep.acknowledge(int(message.time_boot_ms))
+            elif self.params is not None and kind.startswith("PARAM_REQUEST"):
+                for answer in self.params.answer(message):
+                    conn.mav.send(answer)
+                    self.sent[answer.get_type()] += 1
 
     def _wait_for_ack(self, step: int, time_s: float) -> None:
         """Block until ``step`` may be sent (lock-step), or raise :class:`AckTimeout`."""
@@ -395,14 +344,14 @@ class SimEmitter:
 
     def _send(self, record: FlightRecord) -> None:
         mav = self.connection.mav
-        for message in self.encoder.messages(record):
+        for message in self.stream.messages(record):
             mav.send(message)
             self.sent[message.get_type()] += 1
             if self.tlog is not None:
                 self.tlog.write(message.get_msgbuf(), record.time_s)
         if self.tlog is not None:
             self._truth_file.time_s = record.time_s
-            self._truth_mav.send(self.encoder.truth_message(record))
+            self._truth_mav.send(truth_message(record.truth.sample()))
             self._truth_mav.send(truth_wind_message(record.truth.sample()))
 
     def _progress(self, record: FlightRecord, started: float, sent_steps: int) -> None:
@@ -428,7 +377,7 @@ class SimEmitter:
         """
         record = self.flight.start()
         if self.tlog is not None:
-            self._truth_mav.send(self.encoder.scenario_message(self.scenario_name))
+            self._truth_mav.send(statustext_message(scenario_annotation(self.scenario_name)))
         dt_s = self.flight.driver.dt_s
         started = time.monotonic()
         next_progress = started + self.progress_period_s
@@ -451,13 +400,15 @@ class SimEmitter:
                 stopped_by = signal.Signals(self.stop_signal).name
                 break
             self._send(record)
+            if self.stream.sent_imu:
+                self._last_imu_step = step
             sent_steps += 1
             sent_time_s = record.time_s
             if self.progress_period_s > 0.0 and time.monotonic() >= next_progress:
                 self._progress(record, started, sent_steps)
                 next_progress += self.progress_period_s
         if self.mode == "lockstep" and stopped_by is None:
-            self._wait_for_ack(self.steps + self.lockstep.window_steps, record.time_s)
+            self._wait_for_ack(self._last_imu_step + self.lockstep.window_steps, record.time_s)
             if self.stop_signal:
                 stopped_by = signal.Signals(self.stop_signal).name
         if self.tlog is not None:
@@ -549,9 +500,56 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         metavar="S",
         help="sim time to fly (s; default: the scenario's duration_s)",
     )
+    add_profile_arguments(parser)
     add_signing_argument(parser)
     add_json_argument(parser)
     parser.set_defaults(handler=run_sim)
+
+
+def add_profile_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--profile`` and its rates: the stream an autopilot would send (default: the scenario's)."""
+    group = parser.add_argument_group("autopilot stream (default: the scenario's profile)")
+    group.add_argument(
+        "--profile",
+        choices=tuple(PROFILES),
+        default=None,
+        help="speak as: native (HIGHRES_IMU 100 Hz, servo 100 Hz), ardupilot (RAW_IMU + "
+        "SCALED_IMU2 50 Hz in mG and mrad/s, servo 10 Hz, GPS 5 Hz, ArduPlane HEARTBEAT, "
+        "SERVOn_* answered) or px4 (HIGHRES_IMU 250 Hz, servo 10 Hz, GPS 5 Hz, PX4 HEARTBEAT)",
+    )
+    for flag, text in (
+        ("--imu-hz", "IMU messages per second (20-1000)"),
+        ("--servo-hz", "SERVO_OUTPUT_RAW per second"),
+        ("--gps-hz", "GPS fixes per second"),
+    ):
+        group.add_argument(flag, type=float, default=None, metavar="HZ", help=text)
+    group.add_argument(
+        "--servo-layout",
+        choices=SERVO_LAYOUTS,
+        default=None,
+        help="ardupilot profile: ArduPlane's conventional AETR outputs, elevons or a V-tail",
+    )
+
+
+def profile_from_args(args: argparse.Namespace, scenario_profile: StreamProfile) -> StreamProfile:
+    """The scenario's profile with the command line's choices on top (one-line errors)."""
+    changes = {
+        key: getattr(args, attr)
+        for key, attr in (
+            ("name", "profile"),
+            ("imu_hz", "imu_hz"),
+            ("servo_hz", "servo_hz"),
+            ("gps_hz", "gps_hz"),
+            ("servo_layout", "servo_layout"),
+        )
+        if getattr(args, attr, None) is not None
+    }
+    if "name" in changes and changes["name"] != scenario_profile.name:
+        scenario_profile = StreamProfile()  # another autopilot: none of the scenario's rates
+    try:
+        return dataclasses.replace(scenario_profile, **changes)
+    except ValueError as exc:
+        raise UserError(f"--profile: {exc}") from None
 
 
 def _check_args(args: argparse.Namespace) -> None:
@@ -581,9 +579,11 @@ def run_sim(args: argparse.Namespace) -> int:
     scenario = load_scenario(args.scenario)
     duration_s = args.duration if args.duration is not None else scenario.duration_s
     mode = "realtime" if args.realtime else "free-run" if args.free_run else "lockstep"
+    profile = profile_from_args(args, scenario.profile)
     flight = flight_from_scenario(
-        scenario, out_dir=Path(args.out_dir) if args.out_dir is not None else None
+        scenario, out_dir=Path(args.out_dir) if args.out_dir is not None else None, profile=profile
     )
+    stream, params = profile_stream(flight, profile)
     steps = int(round(duration_s / flight.driver.dt_s))
     try:
         connection = connect(args.out_url, SIM_SYSTEM_ID, SIM_COMPONENT_ID, input_=False)
@@ -602,6 +602,8 @@ def run_sim(args: argparse.Namespace) -> int:
         speed=args.speed if args.speed is not None else 1.0,
         tlog=tlog,
         scenario_name=scenario.name,
+        stream=stream,
+        params=params,
     )
 
     def on_signal(signum: int, frame: FrameType | None) -> None:
@@ -609,7 +611,7 @@ def run_sim(args: argparse.Namespace) -> int:
 
     previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     print(
-        f"sim: {scenario.name}, {duration_s:g} s, {mode} -> {args.out_url}"
+        f"sim: {scenario.name}, {duration_s:g} s, {mode}, {profile.describe()} -> {args.out_url}"
         + (f", tlog {args.tlog}" if args.tlog else "")
         + (", signing on" if signing else ", signing off"),
         file=sys.stderr,

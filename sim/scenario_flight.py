@@ -8,18 +8,29 @@ experiments fly the same thing.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import tempfile
 from pathlib import Path
 
 from immukf_sitl.models.airframe import airframe_factors, scaled_params
 from immukf_sitl.models.params import AircraftParams, load_aircraft_params
+from immukf_sitl.models.sensors import SensorSpec
+from immukf_sitl.models.servo_map import ControlMap, ServoMap
 from immukf_sitl.scenario import Scenario, StartSpec
+from immukf_sitl.stream_profile import StreamProfile
 from sim.aircraft_xml import AIRCRAFT_NAME, render_aircraft_xml
 from sim.flight import Flight
+from sim.profile_stream import ParamServer, ProfileStream, second_imu
 from sim.truth import InitialConditions
 
-__all__ = ["flight_from_scenario", "initial_conditions", "write_aircraft"]
+__all__ = [
+    "flight_from_scenario",
+    "initial_conditions",
+    "profile_sensors",
+    "profile_stream",
+    "write_aircraft",
+]
 
 
 def initial_conditions(start: StartSpec) -> InitialConditions:
@@ -48,8 +59,41 @@ def write_aircraft(params: AircraftParams, out_dir: Path) -> Path:
     return root
 
 
+def profile_sensors(sensors: SensorSpec, profile: StreamProfile) -> SensorSpec:
+    """The sensors the truth samples under a profile: per-step noise and the GPS rate.
+
+    The spec's white-noise sigmas are per 10 ms sample; a truth step of ``dt`` raises them by
+    ``sqrt(0.01 / dt)`` (the same noise density), and the GPS fixes at the profile's rate.
+    """
+    factor = profile.noise_factor
+    imu = dataclasses.replace(
+        sensors.imu,
+        accel_sigma_mps2=sensors.imu.accel_sigma_mps2 * factor,
+        gyro_sigma_radps=sensors.imu.gyro_sigma_radps * factor,
+    )
+    gps = dataclasses.replace(sensors.gps, rate_hz=profile.gps_rate_hz(sensors.gps.rate_hz))
+    return dataclasses.replace(sensors, imu=imu, gps=gps)
+
+
+def profile_stream(
+    flight: Flight, profile: StreamProfile
+) -> tuple[ProfileStream, ParamServer | None]:
+    """The stream a flight sends under a profile, and the parameter server that goes with it."""
+    if profile.name != "ardupilot":
+        return ProfileStream(profile, flight.params.actuators), None
+    servo_map = ServoMap.layout(profile.servo_layout)
+    imu2 = second_imu(flight.imu.spec, flight.seed, flight.driver.dt_s)
+    stream = ProfileStream(
+        profile, flight.params.actuators, ControlMap(servo_map, flight.params), imu2
+    )
+    return stream, ParamServer(servo_map)
+
+
 def flight_from_scenario(
-    scenario: Scenario, params: AircraftParams | None = None, out_dir: Path | None = None
+    scenario: Scenario,
+    params: AircraftParams | None = None,
+    out_dir: Path | None = None,
+    profile: StreamProfile | None = None,
 ) -> Flight:
     """A :class:`~sim.flight.Flight` (not yet started) that flies the scenario.
 
@@ -63,6 +107,9 @@ def flight_from_scenario(
     out_dir : Path, optional
         Where a perturbed airframe's JSBSim aircraft is written (default: a new temporary
         directory).
+    profile : StreamProfile, optional
+        The stream the flight is sent as (default: the scenario's ``profile``): it sets the
+        truth step, the per-step IMU noise and the GPS rate (:func:`profile_sensors`).
 
     Returns
     -------
@@ -79,13 +126,16 @@ def flight_from_scenario(
     if factors:
         base = Path(out_dir) if out_dir is not None else Path(tempfile.mkdtemp(prefix="airframe-"))
         root_dir = write_aircraft(flown, base)
+    profile = profile if profile is not None else scenario.profile
+    sensors = profile_sensors(scenario.sensors, profile)
     flight = Flight(
         scenario.flight_plan,
         scenario.seed,
         initial=initial_conditions(scenario.start),
         params=flown,
-        imu_spec=scenario.sensors.imu,
-        gps_spec=scenario.sensors.gps,
+        imu_spec=sensors.imu,
+        gps_spec=sensors.gps,
+        dt_s=profile.truth_dt_s,
         manoeuvres=scenario.manoeuvres,
         wind=scenario.wind,
         root_dir=root_dir,

@@ -25,7 +25,9 @@ from immukf_sitl.mavlink.wire import (
     open_tlog_reader,
 )
 from immukf_sitl.scenario import load_scenario
-from sim.emitter import TRUTH_COMPONENT_ID, AckTimeout, LockStep, SimEmitter, StepEncoder
+from immukf_sitl.stream_profile import StreamProfile
+from sim.emitter import TRUTH_COMPONENT_ID, AckTimeout, LockStep, SimEmitter
+from sim.profile_stream import ProfileStream
 from sim.scenario_flight import flight_from_scenario
 
 # flies JSBSim or the estimator chain
@@ -213,7 +215,7 @@ def test_step_encoder_servo_pwm_maps_back_to_the_controls():
     record = flight.start()
     for _ in range(50):
         record = flight.step()
-    encoder = StepEncoder(flight.params.actuators)
+    encoder = ProfileStream(StreamProfile(), flight.params.actuators)
     sample = encoder.actuator_sample(record)
     assert len(sample.pwm_us) == 16
     back = flight.params.actuators.pwm_to_controls(sample.pwm_us)

@@ -220,11 +220,9 @@ def quaternion_to_euler(q_wxyz: np.ndarray) -> np.ndarray:
     return Rotation.from_quat([x, y, z, w]).as_euler("ZYX")[::-1]
 
 
-def heartbeat_message(mav_type: int) -> MavMessage:
-    """HEARTBEAT of a vehicle or component of ``mav_type`` with no flight stack, active."""
-    return mavlink.MAVLink_heartbeat_message(
-        mav_type, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, mavlink.MAV_STATE_ACTIVE, 3
-    )
+def heartbeat_message(mav_type: int, autopilot: int = mavlink.MAV_AUTOPILOT_INVALID) -> MavMessage:
+    """HEARTBEAT of a vehicle or component of ``mav_type``, active (default: no flight stack)."""
+    return mavlink.MAVLink_heartbeat_message(mav_type, autopilot, 0, 0, mavlink.MAV_STATE_ACTIVE, 3)
 
 
 def statustext_message(text: str, severity: int = mavlink.MAV_SEVERITY_INFO) -> MavMessage:
