@@ -306,10 +306,16 @@ class SimEmitter:
             self.received[kind] += 1
             if kind == "SYSTEM_TIME" and message.get_srcComponent() == ESTIMATOR_COMPONENT_ID:
                 self.lockstep.acknowledge(int(message.time_boot_ms))
+                continue
+            if kind in ("COMMAND_LONG", "REQUEST_DATA_STREAM"):
+                answers = self.stream.on_request(message)
             elif self.params is not None and kind.startswith("PARAM_REQUEST"):
-                for answer in self.params.answer(message):
-                    conn.mav.send(answer)
-                    self.sent[answer.get_type()] += 1
+                answers = self.params.answer(message)
+            else:
+                continue
+            for answer in answers:
+                conn.mav.send(answer)
+                self.sent[answer.get_type()] += 1
 
     def _wait_for_ack(self, step: int, time_s: float) -> None:
         """Block until ``step`` may be sent (lock-step), or raise :class:`AckTimeout`."""

@@ -12,7 +12,10 @@ as SCALED_IMU2, with its own noise and turn-on bias, as a Pixhawk's second IMU w
 
 :class:`ParamServer` answers PARAM_REQUEST_READ and PARAM_REQUEST_LIST the way ArduPilot does,
 with the ``SERVOn_*`` and ``MIXING_GAIN`` of the profile's servo layout (outputs it does not use
-report function 0 and ArduPilot's default range).
+report function 0 and ArduPilot's default range). Both autopilot profiles take
+MAV_CMD_SET_MESSAGE_INTERVAL for their IMU and servo messages (COMMAND_ACK ACCEPTED, DENIED for
+anything else, GPS included: a receiver's rate is its own) and REQUEST_DATA_STREAM of
+RAW_SENSORS and RC_CHANNELS, as ``serve --request-streams`` asks.
 """
 
 from __future__ import annotations
@@ -30,7 +33,7 @@ from immukf_sitl.models.params import MAX_SERVO_CHANNEL, Actuators
 from immukf_sitl.models.sensors import ImuSpec
 from immukf_sitl.models.servo_map import ControlMap, ServoMap
 from immukf_sitl.samples import ActuatorSample, ImuSample
-from immukf_sitl.stream_profile import StreamProfile
+from immukf_sitl.stream_profile import TRUTH_RATE_HZ, StreamProfile
 from sim.flight import FlightRecord
 from sim.sensors import ImuModel
 
@@ -122,6 +125,43 @@ class ProfileStream:
         self._means = [_Mean() for _ in profile.imu_messages]
         #: whether the last record's messages carried the IMU (the lock-step acknowledges it)
         self.sent_imu = False
+
+    def set_rate(self, message: str, rate_hz: float) -> bool:
+        """Stream ``message`` at ``rate_hz`` from now on, as the autopilot would be asked to.
+
+        Takes the IMU messages (up to the truth's own rate) and SERVO_OUTPUT_RAW; the GPS
+        rate is the receiver's and cannot change. Returns whether the rate was taken.
+        """
+        truth_hz = max(self.profile.imu_rate_hz, TRUTH_RATE_HZ)
+        if message in self.profile.imu_messages and 0.0 < rate_hz <= truth_hz + 1e-9:
+            self._imu_due = _Due(rate_hz)
+            return True
+        if message == "SERVO_OUTPUT_RAW" and 0.0 < rate_hz <= truth_hz + 1e-9:
+            self._servo_due = _Due(rate_hz)
+            return True
+        return False
+
+    def on_request(self, request: MavMessage) -> list[MavMessage]:
+        """Answers to SET_MESSAGE_INTERVAL (COMMAND_ACK) and REQUEST_DATA_STREAM (none)."""
+        if self.profile.name == "native":
+            return []
+        kind = request.get_type()
+        if kind == "COMMAND_LONG" and request.command == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL:
+            name = mavlink.mavlink_map.get(int(request.param1))
+            interval_us = float(request.param2)
+            taken = (
+                name is not None and interval_us > 0 and self.set_rate(name.msgname, 1e6 / interval_us)
+            )
+            result = mavlink.MAV_RESULT_ACCEPTED if taken else mavlink.MAV_RESULT_DENIED
+            return [mavlink.MAVLink_command_ack_message(request.command, result)]
+        if kind == "REQUEST_DATA_STREAM" and request.start_stop and request.req_message_rate > 0:
+            names = {
+                mavlink.MAV_DATA_STREAM_RAW_SENSORS: self.profile.imu_messages,
+                mavlink.MAV_DATA_STREAM_RC_CHANNELS: ("SERVO_OUTPUT_RAW",),
+            }.get(request.req_stream_id, ())
+            for name in names[:1]:
+                self.set_rate(name, float(request.req_message_rate))
+        return []
 
     def actuator_sample(self, record: FlightRecord) -> ActuatorSample:
         """The record's controls as PWM per servo output (1..16, 0 = unused)."""

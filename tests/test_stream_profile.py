@@ -16,11 +16,12 @@ from udp_tools import REPO
 
 from immukf_sitl.mavlink import codec
 from immukf_sitl.mavlink.servo_params import ServoParamRequest
+from immukf_sitl.mavlink.stream_requests import StreamRequest
 from immukf_sitl.mavlink.wire import mavlink
 from immukf_sitl.models.servo_map import ServoMap
 from immukf_sitl.scenario import ScenarioError, load_scenario
 from immukf_sitl.stream_profile import StreamProfile
-from sim.profile_stream import ParamServer
+from sim.profile_stream import AUTOPILOTS, ParamServer
 from sim.scenario_flight import flight_from_scenario, profile_stream
 
 SCENARIO = load_scenario(REPO / "scenarios" / "fault_free.yaml")
@@ -132,3 +133,48 @@ def test_profile_errors_are_one_line(tmp_path) -> None:
         with pytest.raises(ScenarioError, match=message) as info:
             load_scenario(path)
         assert "\n" not in str(info.value)
+
+
+@pytest.mark.parametrize("profile", ["ardupilot", "px4"])
+def test_request_streams_raises_the_rates(profile: str) -> None:
+    """serve's requests, answered by the sim's autopilot: the rates move to what was asked."""
+    slow = StreamProfile(profile, imu_hz=20.0, servo_hz=5.0)
+    flight = flight_from_scenario(SCENARIO, profile=slow)
+    stream, _ = profile_stream(flight, slow)
+    request = StreamRequest()
+    autopilot = AUTOPILOTS[profile]
+    beat = codec.heartbeat_message(mavlink.MAV_TYPE_FIXED_WING, autopilot)
+    beat._header = mavlink.MAVLink_header(beat.id, srcSystem=1, srcComponent=1)
+    request.on_heartbeat(beat)
+    for message in request.requests(0.0):
+        for ack in stream.on_request(message):
+            request.on_command_ack(ack)
+    imu = "RAW_IMU" if profile == "ardupilot" else "HIGHRES_IMU"
+    assert request.accepted == {imu, "SERVO_OUTPUT_RAW"}  # GPS: the receiver's own rate
+    fallback = request.requests(1.5)
+    assert [m.req_stream_id for m in fallback] == [mavlink.MAV_DATA_STREAM_EXTENDED_STATUS]
+    records = [flight.start()] + [
+        flight.step() for _ in range(int(round(2.0 / flight.driver.dt_s)))
+    ]
+    counts = Counter(m.get_type() for r in records for m in stream.messages(r))
+    assert counts[imu] == 101 and counts["SERVO_OUTPUT_RAW"] == 51  # 50 Hz and 25 Hz over 2 s
+    line = request.report({imu: 50.0, "SERVO_OUTPUT_RAW": 25.0, "GPS_RAW_INT": None})
+    assert f"{imu} asked 50 Hz (SET_MESSAGE_INTERVAL), got 50.0 Hz" in line
+    assert "GPS_RAW_INT asked 5 Hz (REQUEST_DATA_STREAM), got nothing" in line
+
+
+def test_request_data_stream_is_honoured() -> None:
+    slow = StreamProfile("ardupilot", imu_hz=20.0, servo_hz=5.0)
+    flight = flight_from_scenario(SCENARIO, profile=slow)
+    stream, _ = profile_stream(flight, slow)
+    for group, rate in (
+        (mavlink.MAV_DATA_STREAM_RAW_SENSORS, 50),
+        (mavlink.MAV_DATA_STREAM_RC_CHANNELS, 25),
+    ):
+        assert (
+            stream.on_request(mavlink.MAVLink_request_data_stream_message(1, 1, group, rate, 1))
+            == []
+        )
+    records = [flight.start()] + [flight.step() for _ in range(200)]
+    counts = Counter(m.get_type() for r in records for m in stream.messages(r))
+    assert counts["RAW_IMU"] == 101 and counts["SERVO_OUTPUT_RAW"] == 51

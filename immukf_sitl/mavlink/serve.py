@@ -42,6 +42,7 @@ from immukf_sitl.mavlink.publish import OutputRates, Publisher, heartbeat
 from immukf_sitl.mavlink.servo_params import ServoParamRequest
 from immukf_sitl.mavlink.signing import LinkSigning, load_key
 from immukf_sitl.mavlink.sources import GPS_MESSAGES, StreamSelector, rate_hint
+from immukf_sitl.mavlink.stream_requests import StreamRequest
 from immukf_sitl.mavlink.tlog import TlogWriter
 from immukf_sitl.mavlink.wire import (
     ESTIMATOR_COMPONENT_ID,
@@ -148,6 +149,8 @@ class EstimatorService:
         Sim time per entry of ``windows`` in :meth:`summary`.
     streams : StreamSelector, optional
         Which IMU and GPS streams to follow (default: the first of each that arrives).
+    request_streams : bool
+        Ask the autopilot for the streams and rates detection needs, and report what arrived.
     """
 
     def __init__(
@@ -162,6 +165,7 @@ class EstimatorService:
         signing: LinkSigning | None = None,
         report_window_s: float = REPORT_WINDOW_S,
         streams: StreamSelector | None = None,
+        request_streams: bool = False,
     ) -> None:
         self.pipeline = pipeline
         self.inbound = inbound
@@ -187,6 +191,7 @@ class EstimatorService:
         self._last_data_wall = 0.0
         self._last_output: EstimateOutput | None = None
         self._stop = False
+        self.stream_request = StreamRequest() if request_streams else None
         #: an ArduPilot vehicle's SERVOn_* parameters, asked for unless --servo-map gave a map
         self.servo_params: ServoParamRequest | None = (
             None if isinstance(pipeline.control_map, ControlMap) else ServoParamRequest()
@@ -264,9 +269,14 @@ class EstimatorService:
                 if self.servo_params is not None:
                     self.servo_params.on_param_value(msg)
                     self.servo_map_tick()
+            elif kind == "COMMAND_ACK":
+                if self.stream_request is not None:
+                    self.stream_request.on_command_ack(msg)
             elif kind == "HEARTBEAT":
                 if self.servo_params is not None:
                     self.servo_params.on_heartbeat(msg)
+                if self.stream_request is not None:
+                    self.stream_request.on_heartbeat(msg)
                 # route the vehicle's heartbeat to the ground stations: QGroundControl creates a
                 # vehicle only from a component-1 heartbeat, then shows our messages beside it
                 for conn in self.outbound:
@@ -315,6 +325,22 @@ class EstimatorService:
             )
         self._say(f"serve: {text}")
         self._publish([codec.statustext_message(short, mavlink.MAV_SEVERITY_INFO)])
+
+    def stream_request_tick(self, now_s: float) -> None:
+        """Send the stream requests that are due; report once what arrived."""
+        request = self.stream_request
+        if request is None:
+            return
+        for msg in request.requests(now_s):
+            self._send(self.inbound, msg.pack(self._mav))
+        if request.report_due(now_s):
+            p = self.pipeline
+            rates = {name: p.imu_rate.rate_hz for name in ("RAW_IMU", "HIGHRES_IMU")}
+            rates |= {
+                "SERVO_OUTPUT_RAW": p.actuator_rate.rate_hz,
+                "GPS_RAW_INT": p.gps_rate.rate_hz,
+            }
+            self._say(f"serve: {request.report(rates)}")
 
     def _say_notices(self) -> None:
         """The pipeline's notices, once each: on stderr and as STATUSTEXT to the stations."""
@@ -415,6 +441,7 @@ class EstimatorService:
                 last_input = time.monotonic()
             now = time.monotonic()
             self.servo_map_tick(now)
+            self.stream_request_tick(now)
             if now - self._last_wall_heartbeat >= 1.0 and now - self._last_data_wall > 1.0:
                 self._publish([heartbeat()])  # no data flowing: still visible to a GCS
                 self._last_wall_heartbeat = now
@@ -565,6 +592,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="IMU instance to follow (0 first: RAW_IMU/HIGHRES_IMU id N, SCALED_IMU2 is 1, "
         "SCALED_IMU3 2; default: the first IMU stream that arrives)",
     )
+    parser.add_argument(
+        "--request-streams",
+        action="store_true",
+        help="ask the autopilot (ArduPilot or PX4, from its HEARTBEAT) for its IMU at 50 Hz, "
+        "SERVO_OUTPUT_RAW at 25 Hz and GPS_RAW_INT at 5 Hz: SET_MESSAGE_INTERVAL, else "
+        "REQUEST_DATA_STREAM; after 5 s one line says what arrived at what rate",
+    )
     add_signing_argument(parser)
     add_json_argument(parser, "the statistics at exit")
     FilterOptions.add_arguments(parser)
@@ -616,6 +650,7 @@ def _main(args: argparse.Namespace) -> int:
         signing=signing,
         report_window_s=args.report_window,
         streams=StreamSelector(args.imu),
+        request_streams=args.request_streams,
     )
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: service.stop())
