@@ -25,6 +25,7 @@ ALLOWED = (
     ("immukf_sitl/errors.py", set()),
     ("immukf_sitl/vehicle.py", {"immukf_sitl.errors"}),
     ("immukf_sitl/fault_kinds.py", set()),
+    ("immukf_sitl/stream_profile.py", set()),
     (
         "immukf_sitl/scenario.py",
         {
@@ -33,6 +34,7 @@ ALLOWED = (
             "immukf_sitl.models",
             "immukf_sitl.yaml_fields",
             "immukf_sitl.fault_kinds",
+            "immukf_sitl.stream_profile",
         },
     ),  # fmt: skip
     ("immukf_sitl/yaml_fields.py", {"immukf_sitl.errors"}),
@@ -85,6 +87,7 @@ ALLOWED = (
     ("immukf_sitl/cli.py", {"immukf_sitl"}),
     ("immukf_sitl/__init__.py", set()),
     ("sim/emitter.py", {"immukf_sitl", "sim"}),
+    ("sim/profile_stream.py", {"immukf_sitl", "sim"}),
     ("sim/fault_proxy.py", {"immukf_sitl", "sim"}),
     (
         "sim/",
@@ -93,6 +96,7 @@ ALLOWED = (
             "immukf_sitl.models",
             "immukf_sitl.samples",
             "immukf_sitl.scenario",
+            "immukf_sitl.stream_profile",
             "immukf_sitl.errors",
         },
     ),  # fmt: skip
@@ -114,7 +118,12 @@ CONFINED = {
 NO_OWN_MAC = {"hmac", "hashlib"}
 #: What the MAVLink adapter hands out that is pymavlink itself (the module, its message class).
 PYMAVLINK_NAMES = {"mavlink", "mavutil"}
-ADAPTER_SHELLS = ("immukf_sitl/mavlink/", "sim/emitter.py", "sim/fault_proxy.py")
+ADAPTER_SHELLS = (
+    "immukf_sitl/mavlink/",
+    "sim/emitter.py",
+    "sim/fault_proxy.py",
+    "sim/profile_stream.py",
+)
 
 
 def _imports(path: Path) -> list[tuple[str, tuple[str, ...]]]:
