@@ -149,9 +149,8 @@ class ProfileStream:
         if kind == "COMMAND_LONG" and request.command == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL:
             name = mavlink.mavlink_map.get(int(request.param1))
             interval_us = float(request.param2)
-            taken = (
-                name is not None and interval_us > 0 and self.set_rate(name.msgname, 1e6 / interval_us)
-            )
+            rate_hz = 1e6 / interval_us if interval_us > 0 else 0.0
+            taken = name is not None and rate_hz > 0 and self.set_rate(name.msgname, rate_hz)
             result = mavlink.MAV_RESULT_ACCEPTED if taken else mavlink.MAV_RESULT_DENIED
             return [mavlink.MAVLink_command_ack_message(request.command, result)]
         if kind == "REQUEST_DATA_STREAM" and request.start_stop and request.req_message_rate > 0:
