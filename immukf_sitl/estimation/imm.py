@@ -237,7 +237,9 @@ class ImmEstimator:
             widths = self.evidence.widths(weights)  # (r, 6): the IMU channels lead the output
             if widths is not None:
                 extra = np.zeros((r, measurement.model.nz))
-                extra[:, : widths.shape[1]] = widths
+                if measurement.extra_var is not None:
+                    extra += measurement.extra_var
+                extra[:, : widths.shape[1]] += widths
                 measurement = Measurement(measurement.z, measurement.model, extra)
         prior = self.ukf.initial_estimate(previous.t_s, mixed_mean, mixed_cov)
         filtered = self.ukf.step(prior, t_next_s, u, measurement, process)  # eqs. (9)-(25)

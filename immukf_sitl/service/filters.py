@@ -63,6 +63,9 @@ from immukf_sitl.service.turbulence import TurbulenceEstimate
 Variant = Literal["ukf1", "ukf2", "ukf3", "imm"]
 VARIANTS: tuple[str, ...] = ("ukf1", "ukf2", "ukf3", "imm")
 GPS_COURSE_CHANNEL = 4
+#: the controls' forward-difference step (rad, or throttle fraction): small beside their travel,
+#: large beside rounding
+CONTROL_STEP = 1e-3
 
 
 def aero_measurement_models(
@@ -124,10 +127,46 @@ class Observation:
         ``[f_x, f_y, f_z, p, q, r]``; non-finite across a gap (predict only).
     gps : ndarray, shape (5,), or None
         ``[pN, pE, pD, ground speed, course]`` when a fix is due.
+    imu_var_scale : float
+        The IMU reading's noise variance over the sensor's own ``R`` (1: one sample per filter
+        step; the mean of a faster stream's samples has its own,
+        :func:`~immukf_sitl.service.stream_rate.averaged_var_scale`).
+    control_var : ndarray, shape (4,), or None
+        Variance of each held control's error at this step
+        (:class:`~immukf_sitl.service.control_hold.ControlHold`); None: the controls are exact.
+    control_sensitivity : ControlSensitivity or None
+        The model's sensitivity to the controls that turns ``control_var`` into noise.
     """
 
     imu: np.ndarray
     gps: np.ndarray | None = None
+    imu_var_scale: float = 1.0
+    control_var: np.ndarray | None = None
+    control_sensitivity: ControlSensitivity | None = None
+
+
+@dataclass(frozen=True)
+class ControlSensitivity:
+    """How one step of the model moves with each control, about an estimate.
+
+    A control wrong by ``e`` (variance ``S``, diagonal) moves the next state by ``B e`` and the
+    predicted IMU by ``D e``: process noise ``B S B'`` (eq. 1) and output noise ``D S D'``
+    (eq. 2), the linearisation the first-order terms of the unscented transform would give.
+    """
+
+    #: ``(nx, 4)``: d x(k+1) / d u(k), the model's whole state
+    state: np.ndarray
+    #: ``(6, 4)``: d z_imu(k+1) / d u(k+1), the accelerometers' direct feedthrough (and none on
+    #: the gyros)
+    imu: np.ndarray
+
+    def state_cov(self, var: np.ndarray) -> np.ndarray:
+        """``B S B'``: what the controls' error adds to the predicted state's covariance."""
+        return (self.state * var) @ self.state.T
+
+    def imu_var(self, var: np.ndarray) -> np.ndarray:
+        """``diag(D S D')``: what it adds to each IMU channel's predicted variance."""
+        return (self.imu * self.imu) @ var
 
 
 @dataclass(frozen=True)
@@ -195,6 +234,10 @@ class _Bank:
 
     def naming_innovations(self, estimate: VariantEstimate) -> tuple[np.ndarray, np.ndarray] | None:
         """What a failure is named from (:meth:`AircraftEstimator.naming_innovations`)."""
+        return None
+
+    def control_sensitivity(self, estimate: VariantEstimate) -> ControlSensitivity | None:
+        """The model's sensitivity to the controls (None: the variant does not fly on them)."""
         return None
 
     def start(
@@ -406,16 +449,53 @@ class AircraftEstimator(_Bank):
         argument is the pair ``[u(k), u(k+1)]``.
         """
         imu, gps = observation.imu, observation.gps
-        if gps is None:
-            z = Measurement(imu, self.imu_model)
-        else:
-            z = Measurement(np.concatenate([imu, gps]), self.imu_gps_model)
+        model = self.imu_model if gps is None else self.imu_gps_model
+        extra = np.zeros((len(self.modes), model.nz))
+        if observation.imu_var_scale != 1.0:  # the reading's own R, not one sample's
+            extra[:, :6] = (observation.imu_var_scale - 1.0) * self.sensors.imu.sigmas**2
+        held, var = observation.control_sensitivity, observation.control_var
+        if held is not None and var is not None:
+            # the held controls' error: process noise on every mode's state (eq. 1), output
+            # noise on the channels a mode reads through the model (eq. 2), not on a channel it
+            # takes for failed (its reading does not depend on the controls)
+            bank = previous.filter
+            bank = dataclasses.replace(bank, mode_covs=bank.mode_covs + held.state_cov(var))
+            previous = dataclasses.replace(previous, filter=bank)
+            extra[:, :6] += held.imu_var(var) * self._healthy_masks
+        z = Measurement(
+            imu if gps is None else np.concatenate([imu, gps]),
+            model,
+            extra if extra.any() else None,
+        )
         controls = np.asarray(controls, dtype=float)
         pair = np.array([previous.controls, controls])  # u(k), u(k+1)
         bank, air = self.dynamics.step(
             self.imm, previous.filter, previous.turbulence, t_next_s, pair, z, previous.imu
         )
         return VariantEstimate(t_next_s, bank, controls, imu, air)  # the IMU drives nothing here
+
+    @cached_property
+    def _healthy_masks(self) -> np.ndarray:
+        """``(modes, 6)``: 1 where a mode reads the channel through the model."""
+        return np.array([mode.healthy_mask for mode in self.modes])
+
+    def control_sensitivity(self, estimate: VariantEstimate) -> ControlSensitivity:
+        """The model's sensitivity to each control about ``estimate``'s combined mean.
+
+        Forward differences of one model step and one IMU prediction, batched into one call
+        of each (the controls' step is a tenth of a percent of their travel).
+        """
+        mean = estimate.filter.mean
+        n_u = estimate.controls.shape[0]
+        states = np.repeat(mean[:, None], n_u + 1, axis=1)
+        pair = np.repeat(np.array([estimate.controls] * 2)[:, :, None], n_u + 1, axis=2)
+        pair[:, np.arange(n_u), np.arange(1, n_u + 1)] += CONTROL_STEP
+        moved = self.dynamics.process.f(estimate.t_s, states, pair, None)
+        flown = self.dynamics.flown
+        read = flown.imu(estimate.t_s, states[: flown.nx], pair[1])
+        return ControlSensitivity(
+            (moved[:, 1:] - moved[:, :1]) / CONTROL_STEP, (read[:, 1:] - read[:, :1]) / CONTROL_STEP
+        )
 
     def navigation(self, estimate: VariantEstimate) -> NavSolution:
         """The combined estimate as a navigation solution."""

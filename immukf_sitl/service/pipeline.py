@@ -40,18 +40,20 @@ from immukf_sitl.models.sensors import IMU_PERIOD_S, SensorSpec
 from immukf_sitl.models.servo_map import ControlMap
 from immukf_sitl.samples import ActuatorSample, GpsSample, ImuSample
 from immukf_sitl.service.alignment import NavSolution, align
+from immukf_sitl.service.control_hold import ControlHold
 from immukf_sitl.service.declared_set import DeclaredSetDetector
 from immukf_sitl.service.detection import DetectionEvent, DetectorConfig, FaultDetector
 from immukf_sitl.service.fault_naming import FaultNamer
 from immukf_sitl.service.filter_models import FilterModel, PaperModel
 from immukf_sitl.service.filters import (
     AircraftEstimator,
+    ControlSensitivity,
     Estimator,
     Observation,
     VariantEstimate,
     build_estimator,
 )
-from immukf_sitl.service.stream_rate import StreamRate
+from immukf_sitl.service.stream_rate import StreamRate, averaged_var_scale
 
 #: airspeeds tried, in turn, for the warm-up's steady flight (any aircraft in the params'
 #: envelope trims at one of them; the filter itself aligns on the data, not on a trim)
@@ -199,6 +201,12 @@ class EstimatorPipeline:
         self._filter_s: float | None = None
         #: the samples of a stream faster than the filter's step, waiting for theirs
         self._pending: list[np.ndarray] = []
+        #: the noise variance of this step's IMU reading over the sensor's R (their mean's)
+        self._imu_var_scale = 1.0
+        #: the servo outputs held between their samples, and how wrong they may be since
+        self._hold = ControlHold()
+        #: the model's sensitivity to the controls, about the estimate at the last servo sample
+        self._sensitivity: ControlSensitivity | None = None
         self.imu_rate = StreamRate()
         self.actuator_rate = StreamRate()
         self.gps_rate = StreamRate()
@@ -277,6 +285,8 @@ class EstimatorPipeline:
             return
         try:
             self._controls = self.control_map.pwm_to_controls(sample.pwm_us)
+            self._hold.add(time_s, self._controls)
+            self._sensitivity = None  # taken again about the estimate of the coming step
             self._actuator_s = time_s
             self.actuator_rate.add(time_s)
         except ValueError:
@@ -333,6 +343,9 @@ class EstimatorPipeline:
         if steps == 0:
             return None  # a faster stream: this sample waits for the step it belongs to
         imu = self._pending[0] if len(self._pending) == 1 else np.mean(self._pending, axis=0)
+        self._imu_var_scale = averaged_var_scale(
+            len(self._pending), self.imu_rate.interval_s, IMU_PERIOD_S
+        )
         self._pending.clear()
         gps = self._gps_observation(t_s)
         if self.estimator is not None and steps > 1:
@@ -412,6 +425,8 @@ class EstimatorPipeline:
         self._last_imu_s = None
         self._filter_s = None
         self._pending.clear()
+        self._hold.reset()
+        self._sensitivity = None
         for rate in (self.imu_rate, self.actuator_rate, self.gps_rate):
             rate.reset()
         self._gps_rejections = 0
@@ -458,6 +473,7 @@ class EstimatorPipeline:
         nav = align(t_s - IMU_PERIOD_S, imu, gps, failed)
         probs = estimator.probabilities_believing(declared)
         self.estimate = estimator.initial_estimate(nav, self._controls, imu, probs)
+        self._sensitivity = None  # of the new estimator's state
         self._nav = None
         self.estimator = estimator
         if self.detector is None:
@@ -506,7 +522,7 @@ class EstimatorPipeline:
         """
         assert self.estimator is not None and self.detector is not None
         innovations = self.estimator.channel_innovations(est)
-        sigmas = self.config.sensors.imu.sigmas
+        sigmas = self.config.sensors.imu.sigmas * math.sqrt(self._imu_var_scale)
         events = self.detector.update(
             t_s, est.mode_probabilities, imu, sigmas, innovations, est.filter.failure_weights
         )
@@ -543,6 +559,21 @@ class EstimatorPipeline:
         rebased = self.estimator.rebased(self.detector.declared)
         self.estimate = rebased.carried_over(self.estimate, self.estimator)
         self.estimator = rebased
+        self._sensitivity = None  # of the re-based bank's state
+
+    def _held_controls(self, t_s: float) -> tuple[np.ndarray | None, ControlSensitivity | None]:
+        """The variance of the held controls' error at ``t_s`` and the model's sensitivity.
+
+        The sensitivity is taken once per servo sample, about the estimate at the first step
+        that holds it: it moves with the flight condition, not from step to step.
+        """
+        assert self.estimator is not None and self.estimate is not None
+        var = self._hold.variance(t_s)
+        if var is None or not var.any():
+            return None, None
+        if self._sensitivity is None:
+            self._sensitivity = self.estimator.control_sensitivity(self.estimate)
+        return var, self._sensitivity
 
     def _actuators_stale(self, t_s: float) -> bool:
         """Whether the servo outputs are older than a few of their own stream's intervals."""
@@ -559,7 +590,8 @@ class EstimatorPipeline:
         assert self.estimate is not None
         assert self._controls is not None and self.origin is not None
         start = time.perf_counter()
-        est = self.estimator.step(self.estimate, t_s, self._controls, Observation(imu, gps))
+        observation = Observation(imu, gps, self._imu_var_scale, *self._held_controls(t_s))
+        est = self.estimator.step(self.estimate, t_s, self._controls, observation)
         if self._restart_at_s is not None and t_s >= self._restart_at_s:
             # the odds the modes took while the filters converged from the alignment measure
             # that convergence (S >> R), not the sensors: they restart at the prior (what the

@@ -68,3 +68,18 @@ class StreamRate:
     def rate_hz(self) -> float | None:
         """Samples per second (1 / the median interval); None before it is known."""
         return None if self._median_s is None else 1.0 / self._median_s
+
+
+def averaged_var_scale(samples: int, interval_s: float | None, step_s: float) -> float:
+    """The noise variance of the mean of ``samples`` readings over one sample at ``step_s``.
+
+    A sensor of a given white-noise density has, per sample, a variance in proportion to its
+    rate: a reading every ``interval_s`` has ``step_s / interval_s`` times the variance of one
+    every ``step_s`` (the spec sheet's ``R`` is per filter step). The mean of ``samples`` of
+    them divides that by ``samples``. At 250 Hz a 10 ms step holds 2 or 3 readings: 1.25 and
+    0.83 of ``R``, where a fixed ``R`` would be wrong by a quarter every other step. One
+    sample, or an unknown interval, is the sensor's own ``R`` (1).
+    """
+    if samples <= 1 or interval_s is None or interval_s <= 0.0:
+        return 1.0
+    return step_s / (interval_s * samples)
