@@ -44,6 +44,8 @@ A wrong file gets one line naming the file, the field and what was expected
                                    # scale: gain; noise: sigma factor; spikes: size
                                    # (zero and stuck take none)
         rate_hz: 2                 # spikes only: spikes per second (Poisson)
+        imu: 0                     # optional: which of the profile's IMUs fails (0 first;
+                                   # ardupilot sends two), the others stay healthy
     manoeuvres:                    # optional: control doublets on top of the autopilot
       - t_s: 31                    # start (s)
         kind: rudder_doublet       # rudder_doublet | aileron_doublet | elevator_doublet
@@ -162,6 +164,8 @@ class FaultSpec:
     value: float = 0.0
     end_t_s: float | None = None
     rate_hz: float = 0.0
+    #: the failing IMU instance (a real failure takes one IMU; its siblings stay healthy)
+    imu: int = 0
 
     @property
     def mode(self) -> FaultMode:
@@ -283,6 +287,7 @@ def _fault(path: str, where: str, data: Any, duration_s: float) -> FaultSpec:
     end_t_s = None
     if r.has("end_t_s"):
         end_t_s = r.number("end_t_s", lo=t_s, lo_open=True)
+    imu = r.integer("imu", 0)
     r.done()
     ordered = tuple(c for c in IMU_CHANNELS if c in channels)
     return FaultSpec(
@@ -292,6 +297,7 @@ def _fault(path: str, where: str, data: Any, duration_s: float) -> FaultSpec:
         value=value or 0.0,
         end_t_s=end_t_s,
         rate_hz=rate_hz or 0.0,
+        imu=imu,
     )
 
 
@@ -517,7 +523,20 @@ def parse_scenario(data: Any, path: str = "<scenario>") -> Scenario:
         profile=_profile(path, r),
     )
     r.done()
+    check_fault_imus(scenario)
     return scenario
+
+
+def check_fault_imus(scenario: Scenario) -> None:
+    """Each fault's ``imu`` is one the profile sends (a one-line :class:`ScenarioError`)."""
+    sent = scenario.profile.imu_messages
+    for i, fault in enumerate(scenario.faults):
+        if fault.imu >= len(sent):
+            raise ScenarioError(
+                f"{scenario.path}: faults[{i}].imu: {fault.imu}, but the {scenario.profile.name} "
+                "profile sends "
+                + ", ".join(f"imu {k} as {message}" for k, message in enumerate(sent))
+            )
 
 
 def _load_yaml(path: Path, what: str) -> Any:

@@ -537,6 +537,19 @@ def add_profile_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def profile_argv(profile: StreamProfile) -> list[str]:
+    """The command line that makes ``sim`` speak as ``profile`` (what ``run`` hands it)."""
+    argv = ["--profile", profile.name, "--servo-layout", profile.servo_layout]
+    for flag, value in (
+        ("--imu-hz", profile.imu_hz),
+        ("--servo-hz", profile.servo_hz),
+        ("--gps-hz", profile.gps_hz),
+    ):
+        if value is not None:
+            argv += [flag, repr(value)]
+    return argv
+
+
 def profile_from_args(args: argparse.Namespace, scenario_profile: StreamProfile) -> StreamProfile:
     """The scenario's profile with the command line's choices on top (one-line errors)."""
     changes = {

@@ -29,7 +29,9 @@ Fault kinds, from ``t_s`` until ``end_t_s`` (or the end), on each of the fault's
 :mod:`immukf_sitl.fault_kinds` defines them; the noise the kinds add or report is that sensor's
 (``scenario.sensors.imu`` sigma).
 
-Several faults apply in file order, each to the output of the previous ones.
+Several faults apply in file order, each to the output of the previous ones. A fault takes one
+IMU (its ``imu``, the first by default), as a real failure does: on a profile that sends two
+(ArduPilot's RAW_IMU and SCALED_IMU2) the other stays healthy.
 
 With ``--tlog FILE`` the proxy records the stream exactly as it forwards it to the estimator
 (faults included), one record per frame stamped with the frame's sim time, after a first
@@ -61,6 +63,7 @@ from immukf_sitl.mavlink.codec import (
     IMU_MESSAGES,
     DecodeError,
     decode_imu,
+    imu_instance,
     repack_imu,
     statustext_message,
 )
@@ -147,13 +150,15 @@ class FaultInjector:
         """The faults that act at ``time_s``."""
         return tuple(f for f in self.faults if f.active(time_s))
 
-    def apply(self, sample: ImuSample) -> ImuSample:
+    def apply(self, sample: ImuSample, imu: int = 0) -> ImuSample:
         """The sample as the faulty IMU reports it.
 
         Parameters
         ----------
         sample : ImuSample
             The healthy sample (its ``time_s`` is the sim clock the schedule refers to).
+        imu : int
+            The IMU instance it is from: only that IMU's faults act on it.
 
         Returns
         -------
@@ -163,6 +168,8 @@ class FaultInjector:
         t = sample.time_s
         values: np.ndarray | None = None
         for i, fault in enumerate(self.faults):
+            if fault.imu != imu:
+                continue
             if not fault.active(t):
                 self._held[i] = None  # a later onset holds its own value
                 self._last_t_s[i] = None
@@ -274,7 +281,8 @@ class FaultProxy:
         self._to_sim = 0
         self._modified = 0
         self._bad = 0
-        #: every IMU message of every profile (HIGHRES_IMU, RAW_IMU, SCALED_IMU*) is faulted
+        #: every IMU message of every profile (HIGHRES_IMU, RAW_IMU, SCALED_IMU*) is read; a
+        #: fault acts on its own IMU instance only
         self._imu_types = {getattr(mavlink, f"MAVLINK_MSG_ID_{kind}") for kind in IMU_MESSAGES}
 
     def _new_parser(self) -> mavlink.MAVLink:
@@ -300,14 +308,20 @@ class FaultProxy:
             fault = self.injector.faults[i]
             self._annotate(
                 fault_annotation(
-                    fault.kind, fault.channels, fault.t_s, fault.value, rate_hz=fault.rate_hz
+                    fault.kind,
+                    fault.channels,
+                    fault.t_s,
+                    fault.value,
+                    rate_hz=fault.rate_hz,
+                    imu=fault.imu,
                 ),
                 time_s,
             )
         for i in sorted(self._active - active):
             fault = self.injector.faults[i]
             end_s = fault.end_t_s if fault.end_t_s is not None else time_s
-            self._annotate(fault_annotation(fault.kind, fault.channels, end_s, end=True), time_s)
+            end_text = fault_annotation(fault.kind, fault.channels, end_s, end=True, imu=fault.imu)
+            self._annotate(end_text, time_s)
         self._active = active
 
     @property
@@ -353,7 +367,7 @@ class FaultProxy:
                     self._time_s = sample.time_s  # SCALED_IMU* carry time_boot_ms
                     if self.tlog is not None:
                         self._note_transitions(sample.time_s)
-                    faulted = self.injector.apply(sample)
+                    faulted = self.injector.apply(sample, imu_instance(message))
                     if faulted is not sample:
                         start = out.find(frame, position)
                         if start >= 0:

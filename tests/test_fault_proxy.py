@@ -17,6 +17,7 @@ from scipy import stats
 from test_sim_emitter import Acknowledger
 from udp_tools import DatagramSink, bound_socket, cli_process, free_udp_port, parse_frames
 
+from immukf_sitl.errors import UserError
 from immukf_sitl.experiments.observability import fault_deviation
 from immukf_sitl.mavlink import codec
 from immukf_sitl.mavlink.codec import repack_imu
@@ -403,3 +404,42 @@ def test_transform_rewrites_every_faulted_frame_of_a_long_stream():
     out = [proxy.transform(frame) for frame in frames]
     assert proxy.stats.modified == len(frames)
     assert all(o != f for o, f in zip(out, frames, strict=True))
+
+
+def test_a_fault_takes_one_imu_and_its_sibling_stays_healthy(tmp_path):
+    """ArduPilot's two IMUs interleaved: a stuck fault of IMU 1 leaves RAW_IMU (IMU 0) alone."""
+    fault = FaultSpec(t_s=1.0, channels=("q",), kind="stuck", imu=1)
+    path = tmp_path / "proxy.tlog"
+    with TlogWriter(path) as tlog:
+        proxy = FaultProxy(injector(fault), None, None, tlog=tlog)
+        encoder = mavlink.MAVLink(None, 1, 1)
+        out = []
+        for k in range(4):
+            t_s, first, second = 0.99 + 0.01 * k, BASE + 0.01 * k, BASE - 0.02 * k
+            for kind, values, instance in (("RAW_IMU", first, 0), ("SCALED_IMU2", second, 1)):
+                message = codec.imu_message(kind, sample(t_s, values), instance)
+                out.append(proxy.transform(bytes(message.pack(encoder))))
+    decoded = [codec.decode_imu(m) for m in parse_frames(out)]
+    raw, scaled = decoded[0::2], decoded[1::2]
+    quantum = codec.MRAD_RADPS
+    healthy_q = [BASE[4] + 0.01 * k for k in range(4)]
+    assert [s.gyro_radps[1] for s in raw] == pytest.approx(healthy_q, abs=quantum)
+    held = [s.gyro_radps[1] for s in scaled]
+    assert held[1:] == [held[1]] * 3  # IMU 1's own value at onset, not IMU 0's
+    assert held[1] == pytest.approx(BASE[4] - 0.02, abs=quantum)
+    assert proxy.stats.modified == 3  # IMU 1's three samples from the onset
+    reader = open_tlog_reader(str(path))
+    texts = []
+    while (message := reader.recv_match(type="STATUSTEXT")) is not None:
+        texts.append(message.text)
+    assert "FAULT stuck q t=1.000 i=1" in texts
+
+
+def test_a_fault_on_an_imu_the_profile_does_not_send_is_a_one_line_error(tmp_path):
+    text = (REPO / "scenarios" / "q_gyro_zeroed.yaml").read_text()
+    path = tmp_path / "two.yaml"
+    path.write_text(text.replace("kind: zero}", "kind: zero, imu: 1}"))
+    with pytest.raises(UserError, match=r"faults\[0\]\.imu: 1, but the native profile sends "):
+        load_scenario(path)
+    path.write_text(text.replace("kind: zero}", "kind: zero, imu: 1}") + "profile: ardupilot\n")
+    assert load_scenario(path).faults[0].imu == 1

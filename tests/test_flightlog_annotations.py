@@ -4,7 +4,13 @@ from __future__ import annotations
 
 import pytest
 
-from immukf_sitl.mavlink.flightlog import FAULT_TEXT, fault_annotation
+from immukf_sitl.mavlink.flightlog import (
+    FAULT_TEXT,
+    Annotations,
+    FaultRecord,
+    FlightLog,
+    fault_annotation,
+)
 
 
 @pytest.mark.parametrize(
@@ -36,3 +42,24 @@ def test_six_channels_of_spikes_fit_with_fewer_digits():
     match = FAULT_TEXT.match(text)
     assert float(match["v"]) == pytest.approx(-0.12, abs=0.01)
     assert float(match["r"]) == pytest.approx(12.0, abs=0.5)
+
+
+def test_the_imu_instance_survives_the_round_trip_and_pairs_the_end_with_its_start():
+    notes = Annotations()
+    for text in (
+        fault_annotation("stuck", ("q",), 10.0, imu=1),
+        fault_annotation("zero", ("q",), 12.0),
+        fault_annotation("stuck", ("q",), 20.0, end=True, imu=1),
+    ):
+        notes.feed(text)
+    stuck, zero = notes.faults
+    assert (stuck.kind, stuck.imu, stuck.end_t_s) == ("stuck", 1, 20.0)
+    assert (zero.kind, zero.imu, zero.end_t_s) == ("zero", 0, None)
+    assert stuck.spec().imu == 1
+
+
+def test_a_log_scores_only_the_faults_of_the_imu_it_follows():
+    faults = [FaultRecord("zero", ("q",), 10.0), FaultRecord("stuck", ("p",), 20.0, imu=1)]
+    assert [f.channels for f in FlightLog(faults=faults, imu_instance=0).faults_seen()] == [("q",)]
+    assert [f.channels for f in FlightLog(faults=faults, imu_instance=1).faults_seen()] == [("p",)]
+    assert len(FlightLog(faults=faults).faults_seen()) == 2  # the log does not say which IMU

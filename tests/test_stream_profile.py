@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 from udp_tools import REPO
 
+from immukf_sitl.cli import build_parser, main
 from immukf_sitl.mavlink import codec
 from immukf_sitl.mavlink.servo_params import ServoParamRequest
 from immukf_sitl.mavlink.stream_requests import StreamRequest
@@ -21,6 +22,7 @@ from immukf_sitl.mavlink.wire import mavlink
 from immukf_sitl.models.servo_map import ServoMap
 from immukf_sitl.scenario import ScenarioError, load_scenario
 from immukf_sitl.stream_profile import StreamProfile
+from sim.emitter import profile_argv, profile_from_args
 from sim.profile_stream import AUTOPILOTS, ParamServer
 from sim.scenario_flight import flight_from_scenario, profile_stream
 
@@ -178,3 +180,27 @@ def test_request_data_stream_is_honoured() -> None:
     records = [flight.start()] + [flight.step() for _ in range(200)]
     counts = Counter(m.get_type() for r in records for m in stream.messages(r))
     assert counts["RAW_IMU"] == 101 and counts["SERVO_OUTPUT_RAW"] == 51
+
+
+@pytest.mark.parametrize(
+    "profile",
+    [
+        StreamProfile(),
+        StreamProfile("ardupilot", imu_hz=25.0, servo_layout="elevon"),
+        StreamProfile("px4", imu_hz=250.0, servo_hz=5.0, gps_hz=10.0),
+    ],
+)
+def test_run_hands_the_sim_the_profile_it_was_given(profile: StreamProfile) -> None:
+    """``run --profile``: the sim's command line parses back to the same profile."""
+    parser = build_parser(["sim"])
+    args = parser.parse_args(["sim", "scenarios/fault_free.yaml", *profile_argv(profile)])
+    assert profile_from_args(args, SCENARIO.profile) == profile
+
+
+def test_run_refuses_a_profile_without_the_faulted_imu(tmp_path, capsys) -> None:
+    text = (REPO / "scenarios" / "q_gyro_zeroed.yaml").read_text()
+    path = tmp_path / "second_imu.yaml"
+    path.write_text(text.replace("kind: zero}", "kind: zero, imu: 1}") + "profile: ardupilot\n")
+    assert main(["run", str(path), "--profile", "px4", "--out-dir", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "faults[0].imu: 1, but the px4 profile sends imu 0 as" in err

@@ -83,7 +83,7 @@ class InProcessRun:
         """The run/replay summary."""
         summary = summarize(
             self.scenario.name,
-            self.scenario.faults,
+            [f for f in self.scenario.faults if f.imu == 0],  # the IMU fed in is the first
             self.truth,
             self.history.events(),
             self.history.track(),

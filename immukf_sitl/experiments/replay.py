@@ -73,7 +73,7 @@ def summary_of(result: ReplayResult, scenario_name: str) -> Summary:
     history = result.history
     return summarize(
         scenario_name,
-        [f.spec() for f in result.log.faults],
+        result.log.faults_seen(),
         result.log.truth,
         history.events(),
         history.track(),

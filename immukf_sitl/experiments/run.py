@@ -44,9 +44,10 @@ from immukf_sitl.mavlink.serve import READY as SERVE_READY
 from immukf_sitl.mavlink.serve import WARMING_UP as SERVE_WARMING_UP
 from immukf_sitl.mavlink.signing import load_key, write_key
 from immukf_sitl.options import RunOptions
-from immukf_sitl.scenario import Scenario, load_scenario, sensors_to_yaml
+from immukf_sitl.scenario import Scenario, check_fault_imus, load_scenario, sensors_to_yaml
 from immukf_sitl.service.detection import DetectionEvent
 from immukf_sitl.service.timing import TimingStats
+from sim.emitter import add_profile_arguments, profile_argv, profile_from_args
 
 #: How long serve and proxy may take to bind their ports.
 READY_TIMEOUT_S = 120.0
@@ -140,7 +141,7 @@ def fly_chain(scenario: Scenario, options: RunOptions, files: RunFiles) -> Chain
                   "--json"]  # fmt: skip
     sim_argv = ["sim", options.scenario_path, "--out", f"udpout:127.0.0.1:{p_proxy}",
                 "--tlog", str(files.sim_tlog), "--json", "--out-dir", str(files.out_dir),
-                "--ack-timeout", str(ACK_TIMEOUT_S)]  # fmt: skip
+                "--ack-timeout", str(ACK_TIMEOUT_S), *profile_argv(scenario.profile)]  # fmt: skip
     if options.realtime:
         sim_argv += ["--realtime"]
         if options.speed is not None:
@@ -218,9 +219,10 @@ def run_scenario(scenario: Scenario, options: RunOptions, out_dir: Path) -> Summ
     serve_stats = chain.serve
     events = [DetectionEvent.from_json(e) for e in serve_stats.get("events", [])]
     track = EstimateTrack(est.attitude_t_s, est.euler_rad, est.position_t_s, est.lat_lon_alt)
+    followed = flight.imu_instance  # serve follows the first IMU stream, as the log reader does
     summary = summarize(
         scenario.name,
-        scenario.faults,
+        [f for f in scenario.faults if followed is None or f.imu == followed],
         flight.truth,
         events,
         track,
@@ -298,6 +300,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         epilog="example: immukf-sitl run scenarios/q_gyro_zeroed.yaml --json",
     )
     RunOptions.add_arguments(parser)
+    add_profile_arguments(parser)
     parser.set_defaults(handler=_main)
 
 
@@ -310,6 +313,8 @@ def _main(args: argparse.Namespace) -> int:
     signal.signal(signal.SIGTERM, _terminate)
     options = RunOptions.from_args(args)
     scenario = load_scenario(options.scenario_path)
+    scenario = dataclasses.replace(scenario, profile=profile_from_args(args, scenario.profile))
+    check_fault_imus(scenario)
     if options.duration_s is not None and not 1.0 <= options.duration_s <= scenario.duration_s:
         raise UserError(
             f"--duration: expected 1..{scenario.duration_s} s, got {options.duration_s}"

@@ -177,7 +177,7 @@ def read_dataflash(path: str | Path, imu: int | None = None) -> FlightLog:
         there = ", ".join(log.imu_sources) or "no IMU records"
         raise UserError(f"{path}: no IMU[{imu}] in this log (it has {there})")
     if imu is not None:
-        log.imu_source = f"IMU[{imu}]"
+        log.imu_source, log.imu_instance = f"IMU[{imu}]", imu
     chosen = [s for instance, s in items if instance < 0 or instance == imu]
     log.stream = sorted(chosen, key=lambda s: s.time_s)  # stable: file order at equal times
     log.faults, log.scenario = notes.faults, notes.scenario
@@ -304,7 +304,7 @@ def write_dataflash(
     imu_times = [s.time_s for s in log.stream if isinstance(s, ImuSample)]
     step_s = float(np.median(np.diff(imu_times))) if len(imu_times) > 1 else 0.0
     rate_hz = min(round(1.0 / step_s), 65535) if step_s > 0 else 0  # IMU.GHz, IMU.AHz
-    for fault in log.faults:
+    for fault in log.faults_seen():  # the faults of the IMU written (as IMU 0)
         start = fault_annotation(
             fault.kind, fault.channels, fault.t_s, fault.value, rate_hz=fault.rate_hz
         )

@@ -212,7 +212,7 @@ def write_ulog(
                system_type=system_type, system_id=1, component_id=1)  # fmt: skip
     if log.scenario:
         w.text(min(times_us), scenario_annotation(log.scenario))
-    for f in log.faults:
+    for f in log.faults_seen():  # the faults of the IMU written (as sensor_combined)
         w.text(_us(f.t_s), fault_annotation(f.kind, f.channels, f.t_s, f.value, False, f.rate_hz))
         if f.end_t_s is not None:
             w.text(_us(f.end_t_s), fault_annotation(f.kind, f.channels, f.end_t_s, end=True))
@@ -357,6 +357,10 @@ def read_ulog(path: str | Path, imu: int | None = None) -> FlightLog:
             raise UserError(f"{path}: no {log.imu_source} in this log; it has {there or 'no IMU'}")
     else:
         log.imu_source = next(iter(streams), "")
+    if log.imu_source:  # sensor_combined is the primary IMU's, instance 0
+        prefix = "vehicle_imu["
+        is_instance = log.imu_source.startswith(prefix)
+        log.imu_instance = int(log.imu_source[len(prefix) : -1]) if is_instance else 0
     try:
         imu_samples = _imu_samples(log.imu_source, streams[log.imu_source]) if streams else []
         # at equal times a step's servo outputs and fix come before the IMU sample that steps

@@ -35,7 +35,7 @@ from immukf_sitl.vehicle import vehicle_of_firmware, vehicle_of_mav_type
 
 FAULT_TEXT = re.compile(
     r"^FAULT (?P<end>END )?(?P<kind>\w+) (?P<channels>[xyzpqr+]+) t=(?P<t>[-\d.]+)"
-    r"(?: v=(?P<v>[-+\deE.]+))?(?: r=(?P<r>[-+\deE.]+))?"
+    r"(?: v=(?P<v>[-+\deE.]+))?(?: r=(?P<r>[-+\deE.]+))?(?: i=(?P<i>\d+))?"
 )
 SCENARIO_TEXT = re.compile(r"^SCENARIO (?P<name>\S+)")
 
@@ -52,20 +52,24 @@ def fault_annotation(
     value: float = 0.0,
     end: bool = False,
     rate_hz: float = 0.0,
+    imu: int = 0,
 ) -> str:
     """The proxy's STATUSTEXT marking a fault's start or end (at most 50 characters).
 
     ``FAULT zero q t=30.000``, ``FAULT bias x+z t=12.500 v=0.2``,
-    ``FAULT spikes q t=30.000 v=0.5 r=2``, ``FAULT END zero q t=60.000``. The parameters
-    shrink to 3, then 2, significant digits where 6 would not fit.
+    ``FAULT spikes q t=30.000 v=0.5 r=2``, ``FAULT END zero q t=60.000``, and ``i=1`` at the
+    end for a fault of the second IMU. The parameters shrink to 3, then 2, significant digits
+    where 6 would not fit.
     """
     text = f"FAULT {'END ' if end else ''}{kind} {'+'.join(channels)} t={t_s:.3f}"
+    instance = f" i={imu}" if imu else ""
     for digits in (6, 3, 2):  # fewer digits where 6 do not fit
         full = text
         if value and not end:
             full += f" v={value:.{digits}g}"
         if rate_hz and not end:
             full += f" r={rate_hz:.{digits}g}"
+        full += instance
         if len(full) <= 50:
             break
     return full[:50]
@@ -81,10 +85,13 @@ class FaultRecord:
     value: float = 0.0
     end_t_s: float | None = None
     rate_hz: float = 0.0
+    imu: int = 0
 
     def spec(self) -> FaultSpec:
         """As the scenario's :class:`~immukf_sitl.scenario.FaultSpec`."""
-        return FaultSpec(self.t_s, self.channels, self.kind, self.value, self.end_t_s, self.rate_hz)
+        return FaultSpec(
+            self.t_s, self.channels, self.kind, self.value, self.end_t_s, self.rate_hz, self.imu
+        )
 
 
 @dataclass
@@ -113,6 +120,8 @@ class FlightLog:
         The IMU stream in ``stream`` (``RAW_IMU id 0``, ``IMU[1]``, ``sensor_combined``).
     imu_sources : dict
         Every IMU stream in the log and its sample count.
+    imu_instance : int or None
+        The autopilot's instance number of ``imu_source`` (None where the log does not say).
     params : dict
         The autopilot's parameters in the log (PARAM_VALUE, PARM, ULog parameters).
     """
@@ -127,7 +136,14 @@ class FlightLog:
     vehicle_evidence: str = ""
     imu_source: str = ""
     imu_sources: dict[str, int] = field(default_factory=dict)
+    imu_instance: int | None = None
     params: dict[str, float] = field(default_factory=dict)
+
+    def faults_seen(self) -> list[FaultSpec]:
+        """The faults of the IMU in ``stream`` (a sibling IMU's fault leaves it healthy)."""
+        return [
+            f.spec() for f in self.faults if self.imu_instance is None or f.imu == self.imu_instance
+        ]
 
 
 def _messages(path: str | Path) -> Iterable[MavMessage]:
@@ -155,7 +171,7 @@ class Annotations:
     def __init__(self) -> None:
         self.faults: list[FaultRecord] = []
         self.scenario: str | None = None
-        self._open: dict[tuple[str, tuple[str, ...]], int] = {}
+        self._open: dict[tuple[str, tuple[str, ...], int], int] = {}
 
     def feed(self, text: str) -> None:
         """Take one text (anything that is not an annotation is ignored)."""
@@ -166,7 +182,8 @@ class Annotations:
         if not match:
             return
         channels = tuple(match["channels"].split("+"))
-        key = (match["kind"], channels)
+        imu = int(match["i"]) if match["i"] else 0
+        key = (match["kind"], channels, imu)
         t_s = float(match["t"])
         if match["end"]:
             if key in self._open:
@@ -176,7 +193,7 @@ class Annotations:
         self._open[key] = len(self.faults)
         value = float(match["v"]) if match["v"] else 0.0
         rate = float(match["r"]) if match["r"] else 0.0
-        self.faults.append(FaultRecord(match["kind"], channels, t_s, value, rate_hz=rate))
+        self.faults.append(FaultRecord(match["kind"], channels, t_s, value, rate_hz=rate, imu=imu))
 
 
 def read_flight_log(path: str | Path, imu: int | None = None) -> FlightLog:
@@ -226,6 +243,7 @@ def read_flight_log(path: str | Path, imu: int | None = None) -> FlightLog:
                 log.bad_records += 1  # a fix without 3D lock is a readable record, not a bad one
     log.faults, log.scenario = notes.faults, notes.scenario
     log.imu_source, log.imu_sources = select.imu_source, select.imu_sources()
+    log.imu_instance = select.imu_stream[1] if select.imu_stream is not None else None
     if select.imu_stream is None and select.imu_counts:
         raise UserError(f"{path}: {select.missing_imu()}")
     return log
