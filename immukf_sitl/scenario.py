@@ -523,12 +523,14 @@ def parse_scenario(data: Any, path: str = "<scenario>") -> Scenario:
         profile=_profile(path, r),
     )
     r.done()
-    check_fault_imus(scenario)
     return scenario
 
 
 def check_fault_imus(scenario: Scenario) -> None:
-    """Each fault's ``imu`` is one the profile sends (a one-line :class:`ScenarioError`)."""
+    """Each fault's ``imu`` is one the profile sends (a one-line :class:`ScenarioError`).
+
+    Checked where the profile is final (``sim`` and ``run`` take ``--profile`` over the file's).
+    """
     sent = scenario.profile.imu_messages
     for i, fault in enumerate(scenario.faults):
         if fault.imu >= len(sent):

@@ -74,7 +74,7 @@ from immukf_sitl.options import (
     add_signing_argument,
     add_tlog_argument,
 )
-from immukf_sitl.scenario import load_scenario
+from immukf_sitl.scenario import check_fault_imus, load_scenario
 from immukf_sitl.stream_profile import PROFILES, SERVO_LAYOUTS, StreamProfile
 from sim.flight import Flight, FlightRecord
 from sim.profile_stream import ParamServer, ProfileStream
@@ -599,6 +599,7 @@ def run_sim(args: argparse.Namespace) -> int:
     duration_s = args.duration if args.duration is not None else scenario.duration_s
     mode = "realtime" if args.realtime else "free-run" if args.free_run else "lockstep"
     profile = profile_from_args(args, scenario.profile)
+    check_fault_imus(dataclasses.replace(scenario, profile=profile))
     flight = flight_from_scenario(
         scenario, out_dir=Path(args.out_dir) if args.out_dir is not None else None, profile=profile
     )

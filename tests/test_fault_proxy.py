@@ -25,7 +25,7 @@ from immukf_sitl.mavlink.tlog import TlogWriter
 from immukf_sitl.mavlink.wire import ESTIMATOR_COMPONENT_ID, mavlink, open_tlog_reader
 from immukf_sitl.models.sensors import ImuSpec
 from immukf_sitl.samples import ImuSample
-from immukf_sitl.scenario import FaultSpec, load_scenario
+from immukf_sitl.scenario import FaultSpec, check_fault_imus, load_scenario
 from sim.fault_proxy import FaultInjector, FaultProxy, fault_rng
 from sim.scenario_flight import flight_from_scenario
 
@@ -440,6 +440,7 @@ def test_a_fault_on_an_imu_the_profile_does_not_send_is_a_one_line_error(tmp_pat
     path = tmp_path / "two.yaml"
     path.write_text(text.replace("kind: zero}", "kind: zero, imu: 1}"))
     with pytest.raises(UserError, match=r"faults\[0\]\.imu: 1, but the native profile sends "):
-        load_scenario(path)
+        check_fault_imus(load_scenario(path))
     path.write_text(text.replace("kind: zero}", "kind: zero, imu: 1}") + "profile: ardupilot\n")
+    check_fault_imus(load_scenario(path))
     assert load_scenario(path).faults[0].imu == 1

@@ -220,9 +220,16 @@ def run_scenario(scenario: Scenario, options: RunOptions, out_dir: Path) -> Summ
     events = [DetectionEvent.from_json(e) for e in serve_stats.get("events", [])]
     track = EstimateTrack(est.attitude_t_s, est.euler_rad, est.position_t_s, est.lat_lon_alt)
     followed = flight.imu_instance  # serve follows the first IMU stream, as the log reader does
+    seen = [f for f in scenario.faults if followed is None or f.imu == followed]
+    if len(seen) < len(scenario.faults):
+        print(
+            f"run: {len(scenario.faults) - len(seen)} fault(s) on another IMU than the one "
+            f"serve follows ({flight.imu_source}): injected, not scored",
+            file=sys.stderr,
+        )
     summary = summarize(
         scenario.name,
-        [f for f in scenario.faults if followed is None or f.imu == followed],
+        seen,
         flight.truth,
         events,
         track,
