@@ -31,6 +31,8 @@ from immukf_sitl.estimation import (
 )
 from immukf_sitl.estimation import kernels as compiled_kernels
 from immukf_sitl.estimation.angles import wrap_angle
+from immukf_sitl.estimation.failure_kernels import failure_terms, failure_update
+from immukf_sitl.estimation.fault_modes import FaultMode, bank_modes, failed_channels
 from immukf_sitl.estimation.ukf import _process_column_source, load_kernels
 
 #: Compiled against interpreted: the same operations in the same order, so rounding only.
@@ -640,3 +642,44 @@ def test_an_innovation_covariance_the_kernels_cannot_factor_is_repaired_and_coun
     gain = Pp[:, 1] / (Pp[1, 1] + 4.0)
     expected = ests[0].predicted_mean[0] + gain * (5.5 - ests[0].predicted_mean[0, 1])
     np.testing.assert_allclose(ests[0].mean[0], expected, rtol=1e-6)
+
+
+# -- the untrusted modes' scoring (estimation/failure_kernels.py) ------------------------------
+
+
+def _scoring_inputs(seed: int):
+    """A re-based bank's failed pairs with random innovations, offsets, readings and weights."""
+    rng = np.random.default_rng(seed)
+    modes = bank_modes(FaultMode.from_name("p"))
+    failed, channels = failed_channels(modes)
+    reference = rng.integers(0, len(modes), failed.size)
+    pairs = np.column_stack([failed, channels, reference]).astype(np.int64)
+    r = len(modes)
+    innovation = rng.normal(0.0, 0.05, (r, 9))
+    a = rng.normal(0.0, 0.05, (r, 9, 9))
+    cov = a @ np.transpose(a, (0, 2, 1)) + 1e-4 * np.eye(9)
+    z = rng.normal(0.0, 0.3, 9)
+    z[channels[:2]] = 1e-5  # readings near zero: some dead parts are not seen
+    previous = z[:6] + rng.normal(0.0, 1e-4, 6)
+    previous[0] = np.nan  # nothing held on one channel
+    offset_reading = rng.normal(0.0, 0.1, failed.size)
+    limits = np.concatenate([rng.uniform(1e-5, 1e-3, 6), [3.0, 0.1]])
+    weights = rng.dirichlet(np.ones(4), (r, 6))
+    widths = rng.uniform(0.0, 1e-4, (r, 6))
+    spreads = np.concatenate([rng.uniform(1.0, 10.0, 6), [1e-6]])
+    return pairs, innovation, cov, z, previous, offset_reading, limits, weights, widths, spreads
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_failure_scoring_compiled_equals_interpreted(seed):
+    pairs, nu, cov, z, previous, offset, limits, weights, widths, spreads = _scoring_inputs(seed)
+    terms = failure_terms(pairs, nu, cov, z, previous, offset, limits)
+    reference = failure_terms.py_func(pairs, nu, cov, z, previous, offset, limits)
+    np.testing.assert_allclose(terms, reference, rtol=SAME, atol=0.0)
+    assert 0 < terms[:, 3].sum() < len(pairs)  # seen and unseen dead parts both exercised
+    base = np.random.default_rng(seed).normal(-40.0, 5.0, len(weights))
+    got = failure_update(pairs, terms, nu, cov, widths, weights, base, spreads)
+    want = failure_update.py_func(pairs, terms, nu, cov, widths, weights, base, spreads)
+    for a, b in zip(got, want, strict=True):
+        np.testing.assert_allclose(a, b, rtol=SAME, atol=1e-15)
+    np.testing.assert_allclose(got[1].sum(axis=2), 1.0, rtol=1e-12)  # weights stay a simplex

@@ -28,6 +28,7 @@ from functools import cached_property
 
 import numpy as np
 
+from immukf_sitl.estimation.failure_kernels import failure_terms, failure_update
 from immukf_sitl.estimation.models import MeasurementFn
 
 IMU_CHANNELS: tuple[str, ...] = ("x", "y", "z", "p", "q", "r")
@@ -585,12 +586,24 @@ class DeadOrAnyEvidence:
             raise ValueError(f"dead_weight: expected a value in (0, 1), got {self.dead_weight}")
 
     @cached_property
-    def _failed(self) -> tuple[np.ndarray, np.ndarray]:
-        return failed_channels(self.modes)
+    def _pairs(self) -> np.ndarray | None:
+        """``(k, 3)``: mode, channel and reference slot of every failed pair (None: none)."""
+        modes, channels = failed_channels(self.modes)
+        reference = reference_slots(self.modes)
+        if reference is None or modes.size == 0:
+            return None
+        return np.ascontiguousarray(np.column_stack([modes, channels, reference]), dtype=np.int64)
 
     @cached_property
-    def _reference(self) -> np.ndarray | None:
-        return reference_slots(self.modes)
+    def _limits(self) -> np.ndarray:
+        """``R`` of the six channels, the observability threshold and the stuck spread."""
+        return np.concatenate([self.noise_var[:N_IMU], [self.n_sigma, STUCK_SIGMAS]])
+
+    @cached_property
+    def _spreads(self) -> np.ndarray:
+        """``V = range^2 / 3`` of the six channels and the weights' floor."""
+        assert self.offset is not None
+        return np.concatenate([self.offset.ranges**2 / 3.0, [FAILURE_WEIGHT_FLOOR]])
 
     def __call__(
         self,
@@ -602,7 +615,7 @@ class DeadOrAnyEvidence:
         u: np.ndarray,
         log_likelihood: np.ndarray,
     ) -> np.ndarray:
-        """The modes' log-likelihoods with each failed channel scored by the mixture.
+        """The modes' log-likelihoods with each failed channel scored by the fixed mixture.
 
         Same arguments as :class:`ObservabilityGate`; ``u`` is unused (the mode's prediction of
         the channel is ``z - nu``, less its offset in ``predicted_mean``).
@@ -610,62 +623,42 @@ class DeadOrAnyEvidence:
         terms = self._terms(predicted_mean, innovation, innovation_cov, z)
         if terms is None:
             return log_likelihood
-        modes, log_any, (log_dead, log_w_dead), _, _, _ = terms
+        pairs, t = terms
         w = self.dead_weight
-        mixture = np.logaddexp(log_w_dead + log_dead, np.log1p(-w) + log_any)
+        log_w_dead = np.where(t[:, 3] > 0.5, np.log(w), 0.0)  # unseen: the reference, weight 1
+        mixture = np.logaddexp(log_w_dead + t[:, 1], np.log1p(-w) + t[:, 0])
         out = np.array(log_likelihood, dtype=float)
-        np.add.at(out, modes, mixture - log_any)
+        np.add.at(out, pairs[:, 0], mixture - t[:, 0])
         return out
 
     def _terms(
         self,
-        predicted_mean: np.ndarray,
+        predicted_mean: np.ndarray | None,
         innovation: np.ndarray,
         innovation_cov: np.ndarray,
         z: np.ndarray,
         previous_z: np.ndarray | None = None,
-    ) -> tuple | None:
-        """Per failed ``(mode, channel)`` pair: the densities the scorings mix.
-
-        ``(modes, log_any, (log_dead, log_w_dead), log_stuck, channels, (dead_seen,
-        stuck_seen))``: the UKF's factor of the channel (its offset or width included), the
-        dead part (``N(z; 0, R)`` where observable, else the reference mode's factor with weight
-        1: ``log_w_dead`` is ``ln dead_weight`` or 0), the stuck part (the reading equal to the
-        previous one, where the reference predicts it should have moved; else the reference's
-        factor) and where each part was observable.
-        """
-        modes, channels = self._failed
-        reference = self._reference
-        if reference is None or modes.size == 0:
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        """The pairs and their densities (:func:`~.failure_kernels.failure_terms`), or None."""
+        pairs = self._pairs
+        if pairs is None:
             return None
-        nu = innovation[modes, channels]
-        s_wide = innovation_cov[modes, channels, channels]
-        reading = z[channels]
-        own = reading - nu  # the mode's prediction of its failed channel
-        if self.offset is not None:  # ... without the offset it learnt
-            rows = self.offset.index + channels
-            own = own - self.offset.gain[channels, modes] * predicted_mean[modes, rows]
-        r = self.noise_var[channels]
-        log_any = _log_normal(nu, s_wide)
-        nu0 = innovation[reference, channels]
-        s0 = innovation_cov[reference, channels, channels]
-        log_reference = _log_normal(nu0, s0)
-        gate = self.n_sigma * np.sqrt(s0)
-        # observable: a dead sensor differs from this prediction (a NaN prediction is not),
-        # or the reading is not what a dead one reads
-        observable = (np.abs(own) > gate) | (np.abs(reading) > self.n_sigma * np.sqrt(r))
-        log_dead = np.where(observable, _log_normal(reading, r), log_reference)
-        log_w_dead = np.where(observable, np.log(self.dead_weight), 0.0)
-        # likewise a stuck one: the truth should have moved, or the reading did
-        held = np.full_like(reading, np.nan) if previous_z is None else previous_z[channels]
-        stuck_var = (STUCK_SIGMAS**2) * r
-        moved = np.isfinite(held) & (
-            (np.abs(own - held) > gate)
-            | (np.abs(reading - held) > self.n_sigma * np.sqrt(stuck_var))
+        offset_reading = np.zeros(len(pairs))
+        if self.offset is not None and predicted_mean is not None:
+            modes, channels = pairs[:, 0], pairs[:, 1]
+            learnt = predicted_mean[modes, self.offset.index + channels]
+            offset_reading = self.offset.gain[channels, modes] * learnt
+        held = np.full(N_IMU, np.nan) if previous_z is None else previous_z[:N_IMU]
+        t = failure_terms(
+            pairs,
+            np.ascontiguousarray(innovation, dtype=float),
+            np.ascontiguousarray(innovation_cov, dtype=float),
+            np.ascontiguousarray(z, dtype=float),
+            np.ascontiguousarray(held, dtype=float),
+            offset_reading,
+            self._limits,
         )
-        step = np.where(moved, reading - held, 0.0)
-        log_stuck = np.where(moved, _log_normal(step, stuck_var), log_reference)
-        return modes, log_any, (log_dead, log_w_dead), log_stuck, channels, (observable, moved)
+        return pairs, t
 
     def prior_weights(self, r: int) -> np.ndarray | None:
         """``(r, 6, 4)``: every mode's prior weights of each way to fail (:data:`FAILURE_WAYS`).
@@ -717,46 +710,25 @@ class DeadOrAnyEvidence:
         the posterior ``w_s p_s(z) / sum`` (floored at :data:`FAILURE_WEIGHT_FLOOR`): once the
         readings have shown which way the channel failed, the others cost nothing, where a
         mixture drawn anew each step would charge ``ln(1 / (1 - w))`` a step for the ways it did
-        not fail. ``widths`` ``(r, 6)``
-        are what :meth:`widths` gave this step's update (the offset part's density leaves them
-        out).
+        not fail. ``widths`` ``(r, 6)`` are what :meth:`widths` gave this step's update (the
+        offset part's density leaves them out). A part that cannot be seen scores as the
+        reference (neutral) and moves no weight (:func:`~.failure_kernels.failure_update`).
         """
         if weights is None or self.offset is None:
             return self(t_s, predicted_mean, innovation, innovation_cov, z, u, log_likelihood), None
         terms = self._terms(predicted_mean, innovation, innovation_cov, z, previous_z)
         if terms is None:
             return log_likelihood, weights
-        modes, log_factor, (log_dead, _), log_stuck, channels, seen = terms
-        if widths is None:
-            log_offset = log_factor
-        else:
-            nu = innovation[modes, channels]
-            s_offset = innovation_cov[modes, channels, channels] - widths[modes, channels]
-            log_offset = _log_normal(nu, np.maximum(s_offset, np.finfo(float).tiny))
-        wide = self.offset.ranges[channels] ** 2 / 3.0
-        s_any = innovation_cov[modes, channels, channels] + wide
-        if widths is not None:
-            s_any = s_any - widths[modes, channels]
-        log_anything = _log_normal(innovation[modes, channels], s_any)
-        log_w = np.log(np.maximum(weights[modes, channels], FAILURE_WEIGHT_FLOOR))
-        # the mode's factor: a part that cannot be seen scores as the reference (neutral) ...
-        parts = np.stack([log_dead, log_stuck, log_offset, log_anything], axis=1)  # (k, 4)
-        predictive = np.logaddexp.reduce(log_w + parts, axis=1)
-        out = np.array(log_likelihood, dtype=float)
-        np.add.at(out, modes, predictive - log_factor)
-        # ... and says nothing of which way the channel failed: it moves no weight
-        told = np.stack(
-            [np.where(seen[0], log_dead, log_offset), np.where(seen[1], log_stuck, log_offset),
-             log_offset, log_anything], axis=1,
-        )  # fmt: skip
-        joint = log_w + told
-        posterior = np.exp(joint - np.logaddexp.reduce(joint, axis=1)[:, None])
-        posterior = np.maximum(posterior, FAILURE_WEIGHT_FLOOR)
-        updated = np.array(weights, dtype=float)
-        updated[modes, channels] = posterior / posterior.sum(axis=1, keepdims=True)
-        return out, updated
-
-
-def _log_normal(x: np.ndarray, var: np.ndarray) -> np.ndarray:
-    """``log N(x; 0, var)`` elementwise."""
-    return -0.5 * (x * x / var + np.log(2.0 * np.pi * var))
+        pairs, t = terms
+        r = len(log_likelihood)
+        given = np.zeros((r, N_IMU)) if widths is None else widths
+        return failure_update(
+            pairs,
+            t,
+            np.ascontiguousarray(innovation, dtype=float),
+            np.ascontiguousarray(innovation_cov, dtype=float),
+            np.ascontiguousarray(given, dtype=float),
+            np.ascontiguousarray(weights, dtype=float),
+            np.ascontiguousarray(log_likelihood, dtype=float),
+            self._spreads,
+        )

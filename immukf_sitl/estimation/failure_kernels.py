@@ -1,0 +1,163 @@
+"""The untrusted modes' scoring of their failed channels, as loop kernels numba compiles.
+
+:class:`~immukf_sitl.estimation.fault_modes.DeadOrAnyEvidence` scores each failed
+``(mode, channel)`` pair of the bank by the ways it may have failed (dead, stuck, offset,
+anything). The pairs are a handful (six in the paper's bank, up to a dozen in a re-based one),
+so the arithmetic is a few dozen flops and numpy's dispatch of some sixty array calls was most
+of its cost (156 µs of a 1.1 ms real-air step). These kernels do the same per pair in one call.
+They are plain Python in the subset numba compiles; ``py_func`` of each is the interpreted
+reference that ``tests/test_compiled_kernels.py`` holds the compiled one to, and the
+independent checks of the scoring (``tests/test_untrusted_modes.py``,
+``tests/test_rebased_bank.py``) run on the compiled ones.
+"""
+
+import math
+
+import numba
+import numpy as np
+
+LOG_2PI = math.log(2.0 * math.pi)
+
+
+@numba.njit(cache=True)
+def _log_normal(x: float, var: float) -> float:
+    """``log N(x; 0, var)``."""
+    return -0.5 * (x * x / var + math.log(var) + LOG_2PI)
+
+
+@numba.njit(cache=True)
+def failure_terms(
+    pairs: np.ndarray, innovation: np.ndarray, innovation_cov: np.ndarray, z: np.ndarray,
+    previous_z: np.ndarray, offset_reading: np.ndarray, limits: np.ndarray,
+) -> np.ndarray:  # fmt: skip
+    """The densities of each failed pair, ``(k, 7)``.
+
+    Parameters
+    ----------
+    pairs : ndarray of int, shape (k, 3)
+        Mode, channel and reference slot (the mode that trusts the channel) of each pair.
+    innovation, innovation_cov : ndarray, shapes (r, nz), (r, nz, nz)
+        The update's innovations and covariances (IMU channels first).
+    z : ndarray, shape (nz,)
+        The measurement.
+    previous_z : ndarray, shape (6,)
+        The previous IMU reading (NaN where unknown: nothing held).
+    offset_reading : ndarray, shape (k,)
+        What each pair's learnt offset adds to its mode's prediction (0 without offsets).
+    limits : ndarray, shape (8,)
+        ``R`` of the six channels, then the observability threshold (sigmas) and the stuck
+        reading's spread (noise sigmas).
+
+    Returns
+    -------
+    ndarray, shape (k, 5)
+        Per pair: the UKF's factor of the channel ``N(nu; 0, S)`` (its offset or width
+        included), the dead part ``N(z; 0, R)``, the stuck part (the reading equal to the
+        previous one to ``stuck_sigmas``), and whether each of the two was seen (1.0 or 0.0). A
+        part that cannot be seen (the mode's own prediction within the threshold of what the
+        part reads, and the reading not ruling it out) scores as the reference mode scores the
+        channel: it says nothing for or against the mode.
+    """
+    k = pairs.shape[0]
+    n_sigma, stuck_sigmas = limits[6], limits[7]
+    out = np.empty((k, 5))
+    for f in range(k):
+        j, i, ref = pairs[f, 0], pairs[f, 1], pairs[f, 2]
+        r = limits[i]
+        nu = innovation[j, i]
+        reading = z[i]
+        own = reading - nu - offset_reading[f]  # the mode's prediction without its offset
+        log_any = _log_normal(nu, innovation_cov[j, i, i])
+        s0 = innovation_cov[ref, i, i]
+        log_reference = _log_normal(innovation[ref, i], s0)
+        gate = n_sigma * math.sqrt(s0)
+        # a NaN prediction is never observable: the comparisons are False
+        dead_seen = abs(own) > gate or abs(reading) > n_sigma * math.sqrt(r)
+        log_dead = _log_normal(reading, r) if dead_seen else log_reference
+        held = previous_z[i]
+        stuck_var = stuck_sigmas * stuck_sigmas * r
+        stuck_seen = math.isfinite(held) and (
+            abs(own - held) > gate or abs(reading - held) > n_sigma * math.sqrt(stuck_var)
+        )
+        log_stuck = _log_normal(reading - held, stuck_var) if stuck_seen else log_reference
+        out[f, 0] = log_any
+        out[f, 1] = log_dead
+        out[f, 2] = log_stuck
+        out[f, 3] = 1.0 if dead_seen else 0.0
+        out[f, 4] = 1.0 if stuck_seen else 0.0
+    return out
+
+
+@numba.njit(cache=True)
+def _log_sum_exp4(a: np.ndarray) -> float:
+    """``log sum exp`` of four numbers."""
+    top = max(max(a[0], a[1]), max(a[2], a[3]))
+    if top == -math.inf:
+        return -math.inf
+    return top + math.log(
+        math.exp(a[0] - top) + math.exp(a[1] - top) + math.exp(a[2] - top) + math.exp(a[3] - top)
+    )
+
+
+@numba.njit(cache=True)
+def failure_update(
+    pairs: np.ndarray, terms: np.ndarray, innovation: np.ndarray, innovation_cov: np.ndarray,
+    widths: np.ndarray, weights: np.ndarray, log_likelihood: np.ndarray, spreads: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """The modes' log-likelihoods and weights after scoring the failed pairs by the ways to fail.
+
+    Each pair's factor is the predictive mixture of dead, stuck, offset and anything at the
+    mode's weights; the weights become its posterior, floored.
+
+    Parameters
+    ----------
+    pairs, terms : ndarray
+        As :func:`failure_terms` takes and gives them.
+    innovation, innovation_cov : ndarray
+        As for :func:`failure_terms`.
+    widths : ndarray, shape (r, 6)
+        The variance each mode's update gave each channel (zeros: none).
+    weights : ndarray, shape (r, 6, 4)
+        The modes' weights of dead, stuck, offset and anything, per channel.
+    log_likelihood : ndarray, shape (r,)
+        ``log Lambda_j`` (eq. 25) as the filters computed them.
+    spreads : ndarray, shape (7,)
+        ``V = range^2 / 3`` of the six channels, then the weights' floor.
+
+    Returns
+    -------
+    (ndarray, ndarray)
+        The log-likelihoods ``(r,)`` and the updated weights ``(r, 6, 4)``.
+    """
+    floor = spreads[6]
+    out = log_likelihood.copy()
+    updated = weights.copy()
+    parts = np.empty(4)
+    told = np.empty(4)
+    log_w = np.empty(4)
+    for f in range(pairs.shape[0]):
+        j, i = pairs[f, 0], pairs[f, 1]
+        nu = innovation[j, i]
+        s = innovation_cov[j, i, i]
+        width = widths[j, i]
+        log_factor = terms[f, 0]
+        log_offset = _log_normal(nu, max(s - width, 2.2250738585072014e-308))
+        log_anything = _log_normal(nu, s + spreads[i] - width)
+        parts[0], parts[1], parts[2], parts[3] = terms[f, 1], terms[f, 2], log_offset, log_anything
+        # a part that cannot be seen says nothing of which way the channel failed
+        told[0] = terms[f, 1] if terms[f, 3] > 0.5 else log_offset
+        told[1] = terms[f, 2] if terms[f, 4] > 0.5 else log_offset
+        told[2], told[3] = log_offset, log_anything
+        for s_ in range(4):
+            log_w[s_] = math.log(max(weights[j, i, s_], floor))
+        out[j] += _log_sum_exp4(log_w + parts) - log_factor
+        joint = log_w + told
+        norm = _log_sum_exp4(joint)
+        total = 0.0
+        for s_ in range(4):
+            w = max(math.exp(joint[s_] - norm), floor)
+            updated[j, i, s_] = w
+            total += w
+        for s_ in range(4):
+            updated[j, i, s_] /= total
+    return out, updated
