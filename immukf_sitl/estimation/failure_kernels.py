@@ -17,6 +17,8 @@ import numba
 import numpy as np
 
 LOG_2PI = math.log(2.0 * math.pi)
+#: the smallest normal double: a variance never falls below it
+_TINY = float(np.finfo(np.float64).tiny)
 
 
 @numba.njit(cache=True)
@@ -30,7 +32,7 @@ def failure_terms(
     pairs: np.ndarray, innovation: np.ndarray, innovation_cov: np.ndarray, z: np.ndarray,
     previous_z: np.ndarray, offset_reading: np.ndarray, limits: np.ndarray,
 ) -> np.ndarray:  # fmt: skip
-    """The densities of each failed pair, ``(k, 7)``.
+    """The densities of each failed pair, ``(k, 5)``.
 
     Parameters
     ----------
@@ -141,7 +143,7 @@ def failure_update(
         s = innovation_cov[j, i, i]
         width = widths[j, i]
         log_factor = terms[f, 0]
-        log_offset = _log_normal(nu, max(s - width, 2.2250738585072014e-308))
+        log_offset = _log_normal(nu, max(s - width, _TINY))
         log_anything = _log_normal(nu, s + spreads[i] - width)
         parts[0], parts[1], parts[2], parts[3] = terms[f, 1], terms[f, 2], log_offset, log_anything
         # a part that cannot be seen says nothing of which way the channel failed
