@@ -1,7 +1,10 @@
 """Declarations and releases over a bank re-based on the declared set (untrusted modes)."""
 
+import math
+
 import numpy as np
 import pytest
+from scipy.stats import norm
 
 from immukf_sitl.estimation import FaultMode, bank_modes
 from immukf_sitl.service.declared_set import DeclaredSetDetector, NamedFailure, shows_life
@@ -51,6 +54,57 @@ def test_a_channel_is_declared_only_while_it_disagrees_with_the_others():
     assert 1.0 <= events[0].t_s <= 1.19
     assert det.declared == FaultMode.from_name("q")
     assert det.modes == bank_modes(FaultMode.from_name("q"))
+
+
+def _q_evidence(ratio_q: float) -> np.ndarray:
+    """Slot log-likelihoods with slot q (5) ``ratio_q`` nats above the base, the rest tied."""
+    out = np.full(7, -10.0)
+    out[5] += ratio_q
+    return out
+
+
+def test_one_outlier_of_the_base_does_not_declare_a_channel():
+    """Slot q learnt an offset beyond its uncertainty and leads at 0.99, but its lead over the
+    base is one sample the base's Gaussian tail priced at 5.5 sigma, then ties: nothing is
+    declared. The same offset with the base 1 sigma off sample after sample declares q."""
+    rng = np.random.default_rng(12)
+    det = DeclaredSetDetector(DetectorConfig(dwell_s=0.1, settle_s=0.0), 0.0)
+    events = []
+    # the one gust: the base's density at 5.5 sigma against the slot's at its own residual
+    outlier = norm.logpdf(0.5) - norm.logpdf(5.5)
+    for k in range(200):
+        ratio = outlier if k == 50 else 0.0
+        nu = _innovations(rng, {(5, Q): 3.0})
+        events += det.update(
+            k * 0.01, _probs(5, 0.99), _imu(rng), SIGMAS, nu, log_likelihoods=_q_evidence(ratio)
+        )
+    assert outlier > 14.0 and events == []
+    for k in range(200, 300):
+        base_nu = rng.normal(1.0, 1.0)  # the base 1 sigma off, the slot's offset explains it
+        ratio = norm.logpdf(base_nu - 1.0) - norm.logpdf(base_nu)
+        nu = _innovations(rng, {(5, Q): 3.0})
+        events += det.update(
+            k * 0.01, _probs(5, 0.99), _imu(rng), SIGMAS, nu, log_likelihoods=_q_evidence(ratio)
+        )
+    assert [(e.kind, e.mode.name) for e in events] == [("detected", "q")]
+
+
+@pytest.mark.parametrize(("ratio", "declared"), [(0.35, False), (0.38, True)])
+def test_the_sustained_evidence_is_the_signature_quantile_over_the_window(ratio, declared):
+    """Constant evidence: 19 of the 20 samples must carry ln(q / (1 - q)) = 6.907 nats."""
+    rng = np.random.default_rng(3)
+    cfg = DetectorConfig(dwell_s=0.0, settle_s=0.0)
+    assert math.log(cfg.signature_quantile / (1 - cfg.signature_quantile)) == pytest.approx(
+        6.907, abs=1e-3
+    )
+    det = DeclaredSetDetector(cfg, 0.0)
+    events = []
+    for k in range(cfg.signature_window):
+        nu = _innovations(rng, {(5, Q): 3.0})
+        events += det.update(
+            k * 0.01, _probs(5, 0.99), _imu(rng), SIGMAS, nu, log_likelihoods=_q_evidence(ratio)
+        )
+    assert bool(events) is declared
 
 
 def test_a_second_failure_is_declared_beside_the_first():

@@ -15,6 +15,14 @@ channel's failure: the mode ``D + c`` is always in the bank.
   chi-square quantile ``signature_quantile`` either way), or the slot has seen it fail in a way
   no offset explains: read zero or hold still where it should have moved, or read what no
   learnt offset fits (its weights of dead, stuck and anything at least the quantile).
+  Save for the zero test, the failure must also be *sustained*: over the same window, the
+  slot's log-likelihood ratio to slot 0 without its largest sample is at least
+  ``ln(q / (1 - q))``, ``q = signature_quantile`` (6.9 nats: the window alone, from even odds,
+  makes the mode ``q`` likely). A slot that learnt its offset is the base filter plus one
+  more bias state, as good as the base, so nothing pulls its probability back; one gust the
+  base's Gaussian tail prices at 5 sigma puts it near even odds, and small evidence then
+  carries it over the threshold. A failing sensor keeps disagreeing with the base sample
+  after sample.
 - **Release** channel ``c`` in ``D`` when, for ``clear_dwell_s``, slot ``D - c`` (the
   recovery) stays above ``1 - clear_threshold`` or the offset the base learnt for the channel
   stays within its uncertainty of zero while known to ``alive_sigmas`` noise sigmas (a channel
@@ -37,6 +45,7 @@ Nothing is declared during the first ``settle_s`` after the estimator starts.
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -100,6 +109,9 @@ class DeclaredSetDetector:
         self._failure: dict[int, NamedFailure] = {}
         self._zero_offset_since: dict[int, float] = {}  # declared channel -> reads healthy since
         self._consistent = float(chi2.ppf(config.signature_quantile, 1))
+        q = config.signature_quantile
+        self._sustained_nats = math.log(q / (1.0 - q))
+        self._evidence: deque[np.ndarray] = deque(maxlen=config.signature_window)
         for channel in range(N_IMU):
             if self._bits >> channel & 1:
                 self._start_latch(channel)
@@ -123,6 +135,7 @@ class DeclaredSetDetector:
         self._base_low_since = None
         self._unisolated_said = False
         self._window.forget_residuals()
+        self._evidence.clear()
         self._life.pop(channel, None)
         self._failure.pop(channel, None)
         self._zero_offset_since.pop(channel, None)
@@ -168,13 +181,16 @@ class DeclaredSetDetector:
         imu_sigmas: np.ndarray | None = None,
         innovations: tuple[np.ndarray, np.ndarray] | None = None,
         failure_weights: np.ndarray | None = None,
+        log_likelihoods: np.ndarray | None = None,
     ) -> list[DetectionEvent]:
         """Feed the bank's probabilities at ``t_s`` (slot order of :attr:`modes`).
 
         ``imu`` and ``imu_sigmas`` feed the zero test; ``innovations`` (each slot's residuals
         of its own prediction of each channel and their variances, ``(7, 6)`` each) feed the
         inconsistency test and the life test; ``failure_weights`` ``(7, 6, 3)`` (how each slot
-        believes each channel failed: dead, stuck, offset) the stuck test. Returns the events
+        believes each channel failed: dead, stuck, offset) the stuck test; ``log_likelihoods``
+        ``(7,)`` (this step's, eq. 25; None on a step without an update) the sustained test.
+        Returns the events
         of this sample: at most one declaration or release, after which :attr:`modes` is the
         re-based bank's.
         """
@@ -184,6 +200,9 @@ class DeclaredSetDetector:
             readings = np.asarray(imu, dtype=float)[:N_IMU] / np.asarray(imu_sigmas)[:N_IMU]
         residuals = None if innovations is None else innovations[0] ** 2 / innovations[1]
         self._window.push(readings, residuals)
+        if log_likelihoods is not None:
+            ratio = np.asarray(log_likelihoods, dtype=float)
+            self._evidence.append(ratio - ratio[0])
         if imu is not None and imu_sigmas is not None and innovations is not None:
             self._update_life(t_s, np.asarray(imu, dtype=float), imu_sigmas, innovations)
         self._last_t_s = t_s
@@ -215,16 +234,28 @@ class DeclaredSetDetector:
             if self._bits >> channel & 1 or t_s - since < cfg.dwell_s:
                 continue
             failed = np.arange(N_IMU) == channel
-            if (
-                self._window.reads_zero(failed)
-                or self._window.reads_inconsistent(j, failed)
-                or self._seen_failing(failure_weights, j, channel)
+            if self._window.reads_zero(failed) or (
+                (
+                    self._window.reads_inconsistent(j, failed)
+                    or self._seen_failing(failure_weights, j, channel)
+                )
+                and self._sustained(j)
             ):
                 mode = FaultMode(1 << channel)
                 self._change(channel)
                 p = float(probabilities[j])
                 return [DetectionEvent("detected", mode, t_s, p, declared_after=self._after())]
         return self._unisolated(t_s, probabilities)
+
+    def _sustained(self, j: int) -> bool:
+        """Whether slot ``j`` out-scored slot 0 over the window without its best sample.
+
+        No log-likelihoods fed (a caller that has none): the other tests decide alone.
+        """
+        if not self._evidence:
+            return True
+        ratios = np.array(self._evidence)[:, j]
+        return bool(np.sum(ratios) - np.max(ratios) >= self._sustained_nats)
 
     def _seen_failing(self, weights: np.ndarray | None, j: int, channel: int) -> bool:
         """Whether slot ``j`` has seen its channel fail in a way no healthy offset explains.

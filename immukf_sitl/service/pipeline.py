@@ -523,9 +523,11 @@ class EstimatorPipeline:
         assert self.estimator is not None and self.detector is not None
         innovations = self.estimator.channel_innovations(est)
         sigmas = self.config.sensors.imu.sigmas * math.sqrt(self._imu_var_scale)
+        bank = est.filter
         events = self.detector.update(
-            t_s, est.mode_probabilities, imu, sigmas, innovations, est.filter.failure_weights
-        )
+            t_s, est.mode_probabilities, imu, sigmas, innovations, bank.failure_weights,
+            bank.log_likelihoods if bank.updated else None,
+        )  # fmt: skip
         names = []
         if self._namer.pending:  # the naming residuals only while a declaration waits for them
             naming = self.estimator.naming_innovations(est)
