@@ -190,9 +190,8 @@ class DeclaredSetDetector:
         inconsistency test and the life test; ``failure_weights`` ``(7, 6, 3)`` (how each slot
         believes each channel failed: dead, stuck, offset) the stuck test; ``log_likelihoods``
         ``(7,)`` (this step's, eq. 25; None on a step without an update) the sustained test.
-        Returns the events
-        of this sample: at most one declaration or release, after which :attr:`modes` is the
-        re-based bank's.
+        Returns the events of this sample: at most one declaration or release, after which
+        :attr:`modes` is the re-based bank's.
         """
         cfg = self.config
         readings = None
