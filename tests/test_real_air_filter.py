@@ -14,8 +14,11 @@ from immukf_sitl.models import aero_kernels
 from immukf_sitl.models.aero import AeroModel
 from immukf_sitl.models.airframe import AirframeUncertainty
 from immukf_sitl.models.augmented import (
+    FORCE,
     GPS_ERROR,
+    GUST,
     GYRO_BIAS,
+    MOMENT,
     N_AUGMENTED,
     N_RIGID,
     N_SLOW,
@@ -123,11 +126,14 @@ def test_wind_noise_is_the_dryden_driving_noise(params) -> None:
     assert length[0] == pytest.approx(h_ft / (0.177 + 0.000823 * h_ft) ** 1.2 * 0.3048)
     sigma_w = 0.1 * 30.0 * 0.514444  # MIL-F-8785C: sigma_w = 0.1 W20
     sigma_u = sigma_w / (0.177 + 0.000823 * h_ft) ** 0.4
+    # MIL-HDBK-1797's first-order forms (Yeager eqs. 30-32): u at L_u / V, v and w at L / 2V
     psd_u = 2.0 * sigma_u**2 * 25.0 / length[0]
-    # horizontal: a random walk (any steady wind is learnt) driven by the Dryden PSD
-    assert noise.stationary_sigma[WIND][0] ** 2 == pytest.approx(psd_u)
+    psd_v = 2.0 * sigma_u**2 * 25.0 / (length[1] / 2.0)
+    # horizontal: a random walk (any steady wind is learnt), each axis the mean of the two PSDs
+    assert noise.stationary_sigma[WIND][0] ** 2 == pytest.approx(0.5 * (psd_u + psd_v))
+    assert noise.stationary_sigma[WIND][1] == noise.stationary_sigma[WIND][0]
     assert noise.decay_per_s[WIND].tolist()[:2] == [0.0, 0.0]
-    # vertical: the Dryden gust itself, zero mean over level ground (sigma_w, rate V / L_w)
+    # vertical: the gust itself, zero mean over level ground (sigma_w, rate V / L_w)
     assert noise.stationary_sigma[WIND][2] == pytest.approx(sigma_w)
     assert noise.decay_per_s[WIND][2] == pytest.approx(25.0 / length[2])
     assert noise.initial_sigma[WIND][2] == pytest.approx(sigma_w)
@@ -144,6 +150,35 @@ def test_no_bias_on_the_spec_sheet_means_inert_bias_states(params) -> None:
     noise = slow_state_noise(params, biased, RealAirModel())
     assert noise.initial_sigma[GYRO_BIAS][0] == pytest.approx(math.hypot(0.0017, 5e-5))
     assert noise.decay_per_s[GYRO_BIAS][0] == pytest.approx(1.0 / 300.0)
+
+
+def test_a_vertical_gusts_model_error_is_the_lift_slope_and_pitch_stiffness_error(params) -> None:
+    """10 % of C_L_alpha and C_m_alpha over 0.06 rad of gust: ``0.1 C dalpha qbar S / m`` and
+    ``0.1 |C_m_alpha| dalpha qbar S c / J_y`` (ISA sea level, the linear lift model)."""
+    error = model_error_sigmas(
+        params, AirframeUncertainty(0.1, 0.0, 0.0), 25.0, gust_attack_rad=0.06
+    )
+    qbar = 0.5 * 1.225 * 25.0**2
+    geometry, aero, mass = params.geometry, params.aero, params.mass
+    lift = 0.1 * aero.C_L_alpha * 0.06 * qbar * geometry.S_m2 / mass.mass_kg
+    pitch = 0.1 * abs(aero.C_m_alpha) * 0.06 * qbar * geometry.S_m2 * geometry.c_m / mass.Jy_kgm2
+    assert error.force_gust_mps2[2] == pytest.approx(lift, rel=0.03)  # drag and density: ~1 %
+    assert error.moment_gust_radps2[1] == pytest.approx(pitch, rel=0.01)
+    assert error.force_gust_mps2[2] > 30.0 * error.force_variation_mps2[2]  # calm: 0.01 m/s^2
+    still = model_error_sigmas(params, AirframeUncertainty(0.1, 0.0, 0.0), 25.0)
+    assert np.all(still.force_gust_mps2 == 0.0) and np.all(still.moment_gust_radps2 == 0.0)
+
+
+def test_the_gust_part_of_the_corrections_is_the_turbulences(params) -> None:
+    """The wind and gust states are all turbulence, the corrections partly; still design air:
+    none of it."""
+    noise = slow_state_noise(params, SensorSpec(), RealAirModel())
+    share = noise.turbulence_share
+    assert np.all(share[WIND] == 1.0) and np.all(share[GUST] == 1.0)
+    assert 0.9 < share[FORCE][2] < 1.0 and 0.9 < share[MOMENT][1] < 1.0
+    assert np.all(share[GYRO_BIAS] == 0.0) and np.all(share[GPS_ERROR] == 0.0)
+    still = slow_state_noise(params, SensorSpec(), RealAirModel(design_turbulence="none"))
+    assert np.all(still.turbulence_share[FORCE] == 0.0)
 
 
 def test_model_error_grows_with_the_airframe_uncertainty(params) -> None:

@@ -104,6 +104,20 @@ def test_process_at_scales_only_the_turbulence_states() -> None:
     assert adapter.process_at(0.5) is half  # built once per scale
 
 
+def test_process_at_scales_only_the_turbulences_share() -> None:
+    """A state whose driving variance is 3/4 turbulence: at half the air, 3/4 / 4 + 1/4."""
+    state = np.diag([1.0, 2.0, 3.0, 4.0])
+    process = ProcessModel(
+        f=lambda t, x, u, v: x, nx=4, noise_cov=np.eye(1), additive_noise_cov=state,
+        state_noise_cov=state,
+    )  # fmt: skip
+    adapter = TurbulenceAdapter(process, (1, 3), np.full(6, R), DT_S, turbulence_share=(1.0, 0.75))
+    half = adapter.process_at(0.5)
+    np.testing.assert_allclose(np.diagonal(half.state_noise_cov), [1.0, 0.5, 3.0, 4.0 * 0.4375])
+    with pytest.raises(ValueError, match="turbulence_share"):
+        TurbulenceAdapter(process, (1, 3), np.full(6, R), DT_S, turbulence_share=(1.0, 1.5))
+
+
 def test_bad_settings_are_refused() -> None:
     with pytest.raises(ValueError, match="floor"):
         _adapter(floor=0.0)

@@ -147,12 +147,17 @@ class ModelError:
         The error's size: specific force (m/s^2) and angular acceleration (rad/s^2).
     force_variation_mps2, moment_variation_radps2 : ndarray, shape (3,)
         How much of it changes between flight conditions (the rest is a constant offset).
+    force_gust_mps2, moment_gust_radps2 : ndarray, shape (3,)
+        How much of it a vertical gust changes (zeros without one): the error of a wrong lift
+        slope grows with the angle of attack the gust makes.
     """
 
     force_mps2: np.ndarray
     moment_radps2: np.ndarray
     force_variation_mps2: np.ndarray
     moment_variation_radps2: np.ndarray
+    force_gust_mps2: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    moment_gust_radps2: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
 
 def model_error_sigmas(
@@ -161,6 +166,7 @@ def model_error_sigmas(
     airspeed_mps: float,
     rates_radps: float = 0.2,
     sideslip_rad: float = 0.1,
+    gust_attack_rad: float = 0.0,
 ) -> ModelError:
     """1-sigma errors of the book model's specific force and angular acceleration.
 
@@ -171,7 +177,9 @@ def model_error_sigmas(
     (where the damping derivatives act), and with a sideslip of ``sideslip_rad`` (a crosswind
     gust). Per body axis, the error's size is the root sum of squares over the parameters of
     the largest change, and its variation that of the spread of the change across the
-    conditions.
+    conditions. The gust part is the root sum of squares of the change between trim and trim
+    with the angle of attack raised by ``gust_attack_rad`` at the same airspeed (a vertical
+    gust of ``gust_attack_rad`` times the airspeed).
     """
     origin_model = AeroModel(params, compiled=False)
     x_trim, u_trim = origin_model.trim(airspeed_mps)
@@ -182,7 +190,11 @@ def model_error_sigmas(
         [math.cos(x_trim[7]) * math.cos(sideslip_rad), math.sin(sideslip_rad),
          math.sin(x_trim[7]) * math.cos(sideslip_rad)]
     )  # fmt: skip
-    states = np.stack([x_trim, x_turn, x_slip], axis=1)
+    x_gust = x_trim.copy()  # a vertical gust: (u, w) turned by gust_attack_rad, same airspeed
+    turn, lift = math.cos(gust_attack_rad), math.sin(gust_attack_rad)
+    x_gust[3] = turn * x_trim[3] - lift * x_trim[5]
+    x_gust[5] = lift * x_trim[3] + turn * x_trim[5]
+    states = np.stack([x_trim, x_turn, x_slip, x_gust], axis=1)
 
     def outputs(p: AircraftParams) -> np.ndarray:
         model = dataclasses.replace(origin_model, params=p)
@@ -194,6 +206,7 @@ def model_error_sigmas(
     nominal = outputs(params)
     size = np.zeros(6)
     variation = np.zeros(6)
+    gust = np.zeros(6)
     names = scalable_parameters(params)
     for name in sorted(names):
         group = names[name][0]
@@ -211,10 +224,12 @@ def model_error_sigmas(
             change = outputs(scaled_params(params, {name: 1.0 + sigma})) - nominal
         except ValueError:  # a body that cannot exist (e.g. Jz alone): its draw is never made
             continue
-        size += np.max(np.abs(change), axis=1) ** 2
-        variation += (np.max(change, axis=1) - np.min(change, axis=1)) ** 2
-    size, variation = np.sqrt(size), np.sqrt(variation)
-    return ModelError(size[:3], size[3:], variation[:3], variation[3:])
+        conditions = change[:, :3]  # trim, turn, slip
+        size += np.max(np.abs(conditions), axis=1) ** 2
+        variation += (np.max(conditions, axis=1) - np.min(conditions, axis=1)) ** 2
+        gust += (change[:, 3] - change[:, 0]) ** 2
+    size, variation, gust = np.sqrt(size), np.sqrt(variation), np.sqrt(gust)
+    return ModelError(size[:3], size[3:], variation[:3], variation[3:], gust[:3], gust[3:])
 
 
 def gauss_markov_decay(time_constant_s: float) -> float:

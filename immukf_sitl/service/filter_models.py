@@ -605,10 +605,11 @@ class _RealAirDynamics(ModelDynamics):
         self._offset_state(sensors, model)
         self.adapter: TurbulenceAdapter | None = None
         if model.adaptive_turbulence:
-            turbulence_idx = [N_RIGID + i for g in (WIND, GUST) for i in range(g.start, g.stop)]
+            turbulent = np.flatnonzero(self.noise.turbulence_share > 0.0)
             self.adapter = TurbulenceAdapter(
-                self.process, turbulence_idx, np.diagonal(sensors.imu.noise_cov()), dt,
+                self.process, N_RIGID + turbulent, np.diagonal(sensors.imu.noise_cov()), dt,
                 model.turbulence_averaging_s, floor=model.turbulence_floor,
+                turbulence_share=self.noise.turbulence_share[turbulent],
             )  # fmt: skip
 
     def sigma_points(self, kappa: float) -> ScaledSigmaPoints:

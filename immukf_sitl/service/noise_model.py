@@ -4,12 +4,20 @@ Each of the 18 slow states of :class:`~immukf_sitl.models.augmented.AugmentedAer
 first-order Gauss-Markov process (or a random walk) whose parameters come from a published
 number:
 
-- **wind**: a random walk (a steady wind of any size is learnt) driven as hard as the Dryden
-  turbulence of MIL-F-8785C drives the gust velocity: ``2 sigma^2 V / L`` per axis, with the
-  intensities and scale lengths of the low-altitude model at ``design.design_turbulence``
-  (``moderate``: W20 = 30 kt) and height, and airspeed ``design.design_airspeed_mps``. The
-  initial sigma is ``design.initial_wind_sigma_mps`` horizontally, the turbulence's ``sigma_w``
-  vertically.
+- **wind**: a random walk (a steady wind of any size is learnt) driven as hard as the
+  turbulence of MIL-F-8785C drives the gust velocity, with the intensities and scale lengths
+  of the low-altitude model at ``design.design_turbulence`` (``moderate``: W20 = 30 kt) and
+  height, and airspeed ``design.design_airspeed_mps``. A state of this model is a first-order
+  process, so the horizontal gusts are MIL-HDBK-1797's first-order forms of the Dryden spectra
+  (Yeager, NASA CR-1998-206937, eqs. 30-31): the longitudinal gust with time constant
+  ``L_u / V``, the lateral one with ``L_v / 2V``, which keeps the high-frequency power of its
+  second-order spectrum. Driving PSDs: ``2 sigma_u^2 V / L_u`` along the mean wind and
+  ``4 sigma_v^2 V / L_v`` across it; the wind's direction is learnt, not known, so each
+  horizontal axis takes their mean. The vertical wind is the gust itself: no mean over level
+  ground, sigma ``sigma_w``, rate ``V / L_w``. Its first-order form would be ``2 V / L_w``
+  (eq. 32), but that doubled the attitude error of the first 25 s of a windy flight, while the
+  turbulence adapter still flies the design air. The initial sigma is
+  ``design.initial_wind_sigma_mps`` horizontally, ``sigma_w`` vertically.
 - **gyro bias**: the IMU spec sheet: turn-on sigma (initial) and the bias instability as a
   Gauss-Markov process of the sheet's correlation time.
 - **force correction**: the model error of an airframe with ``design.model_uncertainty``
@@ -18,7 +26,13 @@ number:
   offset; a random walk covers the part that changes with the flight condition within
   ``design.correction_time_constant_s``. A correction that followed every change of the
   specific force (a Gauss-Markov process at the error's full size) would also follow a sensor
-  dying slowly into view: the healthy filter would absorb the fault.
+  dying slowly into view: the healthy filter would absorb the fault. The air changes the
+  condition too: a vertical gust of the design air's ``sigma_w`` turns the angle of attack by
+  ``sigma_w / V`` (3.5 deg in moderate air at 25 m/s), and a lift slope 10 % wrong then errs
+  by 0.7 m/s^2 on the Aerosonde's z axis, fifty times the error's change between the calm
+  conditions. That part walks over the same time constant, and its driving noise is the
+  turbulence's (:attr:`SlowStateNoise.turbulence_share`): it scales with the air learnt in
+  flight, so calm air keeps corrections that a slow fault cannot hide in.
 - **moment correction**: the same, for the angular acceleration.
 - **rotational gusts**: the turbulence's gust gradients turn the air about the aircraft
   (MIL-F-8785C / MIL-HDBK-1797 ``p_g``, ``q_g``, ``r_g``; :func:`rotational_gust_sigmas`), which
@@ -35,7 +49,7 @@ number:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -88,11 +102,16 @@ class SlowStateNoise:
     stationary_sigma : ndarray, shape (15,)
         Gauss-Markov stationary sigma; for a random walk, the sigma its driving noise adds per
         second (``sqrt(PSD)``).
+    turbulence_share : ndarray, shape (18,)
+        The part of each state's driving variance that the turbulence makes (1 for the wind
+        and the rotational gusts, the gust part of the force and moment corrections, 0 for the
+        rest): what the turbulence adapter scales with the air.
     """
 
     initial_sigma: np.ndarray
     decay_per_s: np.ndarray
     stationary_sigma: np.ndarray
+    turbulence_share: np.ndarray = field(default_factory=lambda: np.zeros(N_SLOW))
 
     def step_variance(self, dt_s: float) -> np.ndarray:
         """Variance the driving noise adds over ``dt_s``: exact for the discretised process."""
@@ -109,18 +128,24 @@ def slow_state_noise(
     initial = np.zeros(N_SLOW)
     decay = np.zeros(N_SLOW)
     stationary = np.zeros(N_SLOW)
+    share = np.zeros(N_SLOW)
     imu, gps = sensors.imu, sensors.gps
+    speed = design.design_airspeed_mps
 
-    # wind: random walk driven by the design turbulence (Dryden: psd 2 sigma^2 V / L)
+    # wind: random walk driven by the design turbulence (MIL-HDBK-1797's first-order forms:
+    # psd 2 sigma_u^2 V / L_u along the wind, 4 sigma_v^2 V / L_v across; each axis the mean)
     level = TURBULENCE_LEVELS[design.design_turbulence]
     gust = milspec_low_altitude_sigmas(level.w20_mps, design.design_height_m)
     scale = milspec_scale_lengths_m(design.design_height_m)
-    stationary[WIND] = np.sqrt(2.0 * gust**2 * design.design_airspeed_mps / scale)
+    along, across = 2.0 * gust[0] ** 2 * speed / scale[0], 4.0 * gust[1] ** 2 * speed / scale[1]
+    stationary[WIND] = math.sqrt(0.5 * (along + across))
     initial[WIND] = [design.initial_wind_sigma_mps, design.initial_wind_sigma_mps, gust[2]]
-    # vertical wind: no mean over level ground, the Dryden gust itself (sigma_w, L_w / V)
+    # vertical wind: no mean over level ground, the gust itself (sigma_w, time constant L_w / V;
+    # the first-order form's L_w / 2V loosened the early attitude, module docstring)
     down = WIND.start + 2
-    decay[down] = design.design_airspeed_mps / scale[2]
+    decay[down] = speed / scale[2]
     stationary[down] = gust[2]
+    share[WIND] = 1.0
 
     # gyro bias: the spec sheet
     instability = imu.bias_instability
@@ -132,18 +157,27 @@ def slow_state_noise(
 
     # model error (with the accelerometer's bias folded into the force correction): a random
     # walk from its size, driven so that it covers its variation with the flight condition in
-    # one correction_time_constant_s
-    error = model_error_sigmas(params, design.model_uncertainty, design.design_airspeed_mps)
+    # one correction_time_constant_s; its gust part is that of the design air's vertical gust
+    # (sigma_w / V of angle of attack), scaled with the air in flight
+    error = model_error_sigmas(
+        params, design.model_uncertainty, speed, gust_attack_rad=float(gust[2]) / speed
+    )
     accel_wander = imu.accel_bias_instability_mps2 if instability else 0.0
+    tau = design.correction_time_constant_s
     initial[FORCE] = np.sqrt(error.force_mps2**2 + imu.accel_bias_sigma_mps2**2 + accel_wander**2)
-    stationary[FORCE] = np.sqrt(
-        error.force_variation_mps2**2 / design.correction_time_constant_s
+    force_gust_psd = error.force_gust_mps2**2 / tau
+    force_psd = (
+        error.force_variation_mps2**2 / tau
         + 2.0 * accel_wander**2 / imu.bias_time_constant_s  # the wander's driving PSD
+        + force_gust_psd
     )
+    stationary[FORCE] = np.sqrt(force_psd)
+    share[FORCE] = np.divide(force_gust_psd, force_psd, out=np.zeros(3), where=force_psd > 0.0)
     initial[MOMENT] = error.moment_radps2
-    stationary[MOMENT] = error.moment_variation_radps2 / math.sqrt(
-        design.correction_time_constant_s
-    )
+    moment_gust_psd = error.moment_gust_radps2**2 / tau
+    moment_psd = error.moment_variation_radps2**2 / tau + moment_gust_psd
+    stationary[MOMENT] = np.sqrt(moment_psd)
+    share[MOMENT] = np.divide(moment_gust_psd, moment_psd, out=np.zeros(3), where=moment_psd > 0.0)
 
     # rotational gusts: first-order Gauss-Markov processes of the MIL-F-8785C sigmas and the
     # time constants of JSBSim's generator (Yeager eqs. 9, 13, 17: L_p / V, 4 b / (pi V), 3 b /
@@ -152,13 +186,13 @@ def slow_state_noise(
     level = TURBULENCE_LEVELS[design.design_turbulence]
     if level.w20_mps > 0.0:
         l_w = milspec_scale_lengths_m(design.design_height_m)[2]
-        speed = design.design_airspeed_mps
-        tau = np.array([math.sqrt(l_w * span) / 2.6 / speed, 4.0 * span / (math.pi * speed),
-                        3.0 * span / (math.pi * speed)])  # fmt: skip
+        tau_g = np.array([math.sqrt(l_w * span) / 2.6 / speed, 4.0 * span / (math.pi * speed),
+                          3.0 * span / (math.pi * speed)])  # fmt: skip
         sigma_g = rotational_gust_sigmas(design, span)
         initial[GUST] = sigma_g
         stationary[GUST] = sigma_g
-        decay[GUST] = 1.0 / tau
+        decay[GUST] = 1.0 / tau_g
+        share[GUST] = 1.0
 
     # GPS receiver: its own Gauss-Markov model
     errors = GPS_ERROR
@@ -170,7 +204,7 @@ def slow_state_noise(
     else:  # a random walk of the driving sigma per fix
         stationary[errors] = driving / math.sqrt(gps.period_s)
     initial[errors] = stationary[errors] if gps.k_gps_per_s > 0.0 else driving
-    return SlowStateNoise(initial, decay, stationary)
+    return SlowStateNoise(initial, decay, stationary, share)
 
 
 def rotational_gust_sigmas(design: RealAirModel, span_m: float) -> np.ndarray:

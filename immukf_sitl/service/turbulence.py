@@ -11,8 +11,9 @@ rough air. So the intensity is estimated, not assumed.
 MIL-F-8785C scales every gust intensity (``sigma_u``, ``sigma_v``, ``sigma_w`` and the
 rotational gusts) with one number, W20. So one scale ``k = sigma_flown / sigma_design``
 (``floor <= k <= 1``) multiplies the standard deviations of the turbulence states' driving
-noise. It is learnt by innovation-based covariance matching (Mehra, IEEE TAC 15(2), 1970;
-Mohamed & Schwarz, J. Geodesy 73, 1999). On each IMU channel the leading mode trusts, the
+noise, and of the part of the model-error corrections' driving noise that the gusts make.
+It is learnt by innovation-based covariance matching (Mehra, IEEE TAC 15(2), 1970; Mohamed &
+Schwarz, J. Geodesy 73, 1999). On each IMU channel the leading mode trusts, the
 innovation variance beyond the sensor noise, ``<nu^2 - R>``, is compared with what the filter
 predicted beyond it, ``<S - R>``; both are exponential averages over ``averaging_s``. The
 median of the channels' ratios moves ``k^2`` geometrically toward consistency, with gain
@@ -99,7 +100,8 @@ class TurbulenceAdapter:
     process : ProcessModel
         The filter's process model at the design air (scale 1).
     turbulence_idx : sequence of int
-        States whose driving noise is the turbulence's (the wind and the rotational gusts).
+        States whose driving noise is the turbulence's (the wind and the rotational gusts), or
+        partly so (the model-error corrections).
     noise_var : ndarray, shape (6,)
         ``R`` of the six IMU channels.
     dt_s : float
@@ -110,6 +112,9 @@ class TurbulenceAdapter:
         Time between updates of the scale (s).
     floor : float
         Smallest scale.
+    turbulence_share : sequence of float, optional
+        The part of each of those states' driving variance that is the turbulence's (default
+        all of it); the rest stays at the design's.
     """
 
     process: ProcessModel
@@ -119,6 +124,7 @@ class TurbulenceAdapter:
     averaging_s: float = 10.0
     period_s: float = 0.5
     floor: float = 0.1
+    turbulence_share: Sequence[float] | None = None
     _cache: dict[float, ProcessModel] = field(default_factory=dict, init=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -130,6 +136,11 @@ class TurbulenceAdapter:
                 f"{self.dt_s}, {self.period_s}, {self.averaging_s}"
             )
         object.__setattr__(self, "turbulence_idx", tuple(int(i) for i in self.turbulence_idx))
+        share = self.turbulence_share
+        share = np.ones(len(self.turbulence_idx)) if share is None else np.asarray(share, float)
+        if share.shape != (len(self.turbulence_idx),) or np.any((share < 0.0) | (share > 1.0)):
+            raise ValueError("turbulence_share: expected one value in [0, 1] per turbulence state")
+        object.__setattr__(self, "turbulence_share", share)
         object.__setattr__(self, "noise_var", np.asarray(self.noise_var, dtype=float))
 
     @cached_property
@@ -188,19 +199,21 @@ class TurbulenceAdapter:
         return min(max(math.sqrt(scale2), self.floor), 1.0)
 
     def process_at(self, scale: float) -> ProcessModel:
-        """The process model with the turbulence states' driving noise at ``scale`` (sigmas)."""
+        """The process model with the turbulence's driving noise at ``scale`` (sigmas)."""
         if scale == 1.0:
             return self.process
         cached = self._cache.get(scale)
         if cached is not None:
             return cached
         idx = self.turbulence_idx
+        share = np.asarray(self.turbulence_share)
+        factor = 1.0 - share + share * scale * scale
         changes: dict[str, np.ndarray] = {}
         for name in ("state_noise_cov", "additive_noise_cov"):
             base = getattr(self.process, name)
             if base is not None:
                 scaled = base.copy()
-                scaled[idx, idx] *= scale * scale
+                scaled[idx, idx] *= factor
                 changes[name] = scaled
         model = dataclasses.replace(self.process, **changes)
         self._cache.clear()  # one scale at a time: it moves every period_s
