@@ -126,7 +126,7 @@ def test_wind_noise_is_the_dryden_driving_noise(params) -> None:
     assert length[0] == pytest.approx(h_ft / (0.177 + 0.000823 * h_ft) ** 1.2 * 0.3048)
     sigma_w = 0.1 * 30.0 * 0.514444  # MIL-F-8785C: sigma_w = 0.1 W20
     sigma_u = sigma_w / (0.177 + 0.000823 * h_ft) ** 0.4
-    # MIL-HDBK-1797's first-order forms (Yeager eqs. 30-32): u at L_u / V, v and w at L / 2V
+    # MIL-HDBK-1797's first-order forms (Yeager eqs. 30-31): u at L_u / V, v at L_v / 2V
     psd_u = 2.0 * sigma_u**2 * 25.0 / length[0]
     psd_v = 2.0 * sigma_u**2 * 25.0 / (length[1] / 2.0)
     # horizontal: a random walk (any steady wind is learnt), each axis the mean of the two PSDs

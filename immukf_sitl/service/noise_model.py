@@ -183,9 +183,8 @@ def slow_state_noise(
     # time constants of JSBSim's generator (Yeager eqs. 9, 13, 17: L_p / V, 4 b / (pi V), 3 b /
     # (pi V))
     span = params.geometry.b_m
-    level = TURBULENCE_LEVELS[design.design_turbulence]
     if level.w20_mps > 0.0:
-        l_w = milspec_scale_lengths_m(design.design_height_m)[2]
+        l_w = scale[2]
         tau_g = np.array([math.sqrt(l_w * span) / 2.6 / speed, 4.0 * span / (math.pi * speed),
                           3.0 * span / (math.pi * speed)])  # fmt: skip
         sigma_g = rotational_gust_sigmas(design, span)
