@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.stats import norm
 
-from immukf_sitl.service.fault_naming import FaultNamer, classify_failure
+from immukf_sitl.service.fault_naming import FaultNamer, _spikes, classify_failure
 
 SIGMA = 0.00227  # the gyro's noise (rad/s)
 PRED_SIGMA = 0.002  # the declared mode's prediction error of the channel
@@ -22,6 +23,7 @@ def _flight(rng):
 
 
 S2 = np.full(N, SIGMA**2 + PRED_SIGMA**2)
+SIGMA_E = float(np.sqrt(S2[0]))  # of a healthy residual
 
 
 @pytest.mark.parametrize(
@@ -67,6 +69,38 @@ def test_the_namer_names_a_declaration_once_its_window_is_in():
     channel, name = got[0][1]
     assert channel == 4 and name.kind == "bias"
     assert name.size == pytest.approx(0.0524, rel=0.2)
+
+
+def test_small_spikes_of_either_sign_are_spikes_not_noise():
+    """Spikes of 6 sigma in 5 % of the samples: a heavy tail, which no wider normal explains."""
+    for seed in range(5):
+        rng = np.random.default_rng(10 + seed)
+        t, truth, h, healthy = _flight(rng)
+        hit = rng.random(N) < 0.05
+        hit[17] = True
+        z = healthy + hit * rng.choice([-1.0, 1.0], N) * 6.0 * np.sqrt(S2[0])
+        named = classify_failure(t, z, h, S2, SIGMA)
+        assert named.kind == "spikes", (seed, named)
+        assert named.size == pytest.approx(6.0 * np.sqrt(S2[0]), rel=0.3), (seed, named)
+
+
+def test_the_spike_mixture_fit_reaches_the_likelihood_maximum_of_a_grid_search():
+    """The EM fit of the contaminated normal against a brute-force search of its two sizes."""
+    rng = np.random.default_rng(4)
+    s2 = np.full(N, S2[0])
+    spikes = (rng.random(N) < 0.1) * 0.03 * rng.choice([-1.0, 1.0], N)
+    e = np.sqrt(s2) * rng.standard_normal(N) + spikes
+    loglik, params, kind, size = _spikes(e, s2)
+    best = -np.inf
+    for odds in np.linspace(0.005, 0.5, 100):
+        for a in np.linspace(0.002, 0.08, 157):
+            clean = (1.0 - odds) * norm.pdf(e, 0.0, np.sqrt(s2))
+            best = max(
+                best, float(np.sum(np.log(clean + odds * norm.pdf(e, 0.0, np.hypot(SIGMA_E, a)))))
+            )
+    assert (params, kind) == (2, "spikes")
+    assert loglik >= best - 0.05  # at least the grid's maximum, to its resolution
+    assert size == pytest.approx(0.03, rel=0.3)
 
 
 def test_too_few_samples_is_an_error():
