@@ -564,3 +564,41 @@ def test_fault_kinds_are_an_axis_with_sizes_drawn_in_their_ranges() -> None:
     assert not any("/zero" in r.run_id for r in runs)  # zero runs keep their ids
     again = parse_campaign(data, "c.yaml").runs()
     assert [r.fault_value for r in again] == [r.fault_value for r in runs]  # seeded
+
+
+def test_single_fault_campaigns_keep_their_runs_sizes_and_times() -> None:
+    """Run ids, drawn times and drawn sizes recorded from the code before pair runs existed:
+    a results directory of fault_kinds.yaml must still --resume, and its sizes mean the same."""
+    runs = load_campaign(CAMPAIGNS / "fault_kinds.yaml").runs()
+    assert len(runs) == 387 == len({r.run_id for r in runs})
+    recorded = {
+        0: ("imm/none/r0/t48.17/closed/calm/real-air", 48.17, 0.0),
+        9: ("imm/x/r0/t31.58/closed/calm/real-air/bias", 31.58, -0.513986),
+        13: ("imm/x/r1/t46.05/closed/calm/real-air/drift", 46.05, -0.158336),
+        22: ("imm/x/r1/t46.05/closed/calm/real-air/spikes", 46.05, -1.860187),
+        74: ("imm/p/r2/t63.36/closed/calm/real-air/bias", 63.36, 0.018331),
+        83: ("imm/p/r2/t63.36/closed/calm/real-air/noise", 63.36, 5.72586),
+        101: ("imm/q/r2/t31.9/closed/calm/real-air/scale", 31.9, 0.799348),
+        333: ("imm/p/r0/t76.13/closed/wind10-moderate/real-air/drift", 76.13, -0.010238),
+        386: ("imm/r/r2/t72.47/closed/wind10-moderate/real-air/spikes", 72.47, -0.469385),
+    }
+    for index, (run_id, t_s, value) in recorded.items():
+        r = runs[index]
+        assert (r.run_id, r.fault_t_s, r.fault_value) == (run_id, t_s, value)
+    assert runs[386].scenario.faults[0].rate_hz == 2.0
+    # UKF-1's multi-channel sets still fail at once, one fault per sensor kind
+    kinds = [{"kind": "bias", "accel": [0.1, 2.0], "gyro": [0.01, 0.1]}]
+    data = tiny(variants={"ukf1": ["x+q", "x+y", "p+q+r"]}, fault_kinds=kinds,
+                fault_times_s={"uniform": [1, 7]})  # fmt: skip
+    faults = {
+        r.run_id: [(f.t_s, f.channels, f.value) for f in r.scenario.faults]
+        for r in parse_campaign(data, "c.yaml").runs()
+    }
+    assert faults == {
+        "ukf1/x+y/r0/t4.85/closed/default/paper/bias": [(4.85, ("x", "y"), -1.20469)],
+        "ukf1/x+q/r0/t1.82/closed/default/paper/bias": [
+            (1.82, ("x",), 0.636411),
+            (1.82, ("q",), -0.063207),
+        ],
+        "ukf1/p+q+r/r0/t3.17/closed/default/paper/bias": [(3.17, ("p", "q", "r"), -0.014274)],
+    }
