@@ -77,6 +77,29 @@ def test_shipped_campaigns_expand_to_the_papers_study() -> None:
         ({"variants": {"ukf2": "all_63"}}, r"variants\.ukf2: expected all_64, single or a list"),
         ({"variants": {"ukf2": ["q", "w"]}}, r"variants\.ukf2: expected fault modes .* got 'w'"),
         ({"variants": {"imm": ["x+q"]}}, r"variants\.imm: the IMM's bank holds the 7 single"),
+        (
+            {"variants": {"imm": "pairs"}},
+            r"variants\.imm: the IMM's bank holds the 7 single modes with fault_modes: zero; "
+            r"got x\+y \(pairs need fault_modes: untrusted\)",
+        ),
+        (
+            {"variants": {"imm": ["x+y+z"]}, "fault_modes": "untrusted"},
+            r"variants\.imm: the IMM flies single faults and pairs; got x\+y\+z",
+        ),
+        (
+            {"variants": {"imm": "pairs"}, "fault_modes": "untrusted", "pair_gaps_s": [0, -1]},
+            r"pair_gaps_s: expected a list of distinct numbers >= 0, got \[0, -1\]",
+        ),
+        (
+            {"variants": {"imm": "pairs"}, "fault_modes": "untrusted", "pair_gaps_s": ["soon"]},
+            r"pair_gaps_s: expected a list of distinct numbers >= 0, got \['soon'\]",
+        ),
+        (
+            {"variants": {"imm": "pairs"}, "fault_modes": "untrusted", "pair_gaps_s": [0, 3.5]},
+            r"pair_gaps_s: expected the second fault before the scenario's end \(8 s\), "
+            r"got 8 s \(4\.5 \+ 3\.5\)",
+        ),
+        ({"pair_gaps_s": [0, 10]}, r"pair_gaps_s: only for pair runs"),
         ({"loop": ["closed", "sideways"]}, r"loop: expected closed, open or a list of both"),
         ({"fault_times_s": [9.0]}, r"fault_times_s: expected times before the scenario's end"),
         ({"seeds": 3}, r"seeds: unknown field \(expected one of"),
@@ -602,3 +625,116 @@ def test_single_fault_campaigns_keep_their_runs_sizes_and_times() -> None:
         ],
         "ukf1/p+q+r/r0/t3.17/closed/default/paper/bias": [(3.17, ("p", "q", "r"), -0.014274)],
     }
+
+
+# -- pairs: two channels failing one after the other or at once (untrusted modes) ----------------
+
+BIAS = {"kind": "bias", "accel": [0.1, 2.0], "gyro": [0.01, 0.1]}
+
+
+def pair_campaign(**changes: object):
+    from immukf_sitl.estimation.fault_modes import single_fault_modes
+    from immukf_sitl.experiments.campaign import pair_fault_modes
+
+    scenario = dict(SCENARIO, duration_s=120)
+    modes = [m.name for m in single_fault_modes() + pair_fault_modes()]
+    data = tiny(
+        scenario=scenario,
+        replicates=2,
+        variants={"ukf2": ["x+q"], "imm": modes},
+        fault_modes="untrusted",
+        fault_kinds=[{"kind": "zero"}, BIAS],
+        fault_times_s={"uniform": [20, 70]},
+        pair_gaps_s=[0, 10],
+        air=[{"name": "calm"}, {"name": "windy", "wind": {"speed_mps": 6}}],
+    )
+    data.update(changes)
+    return parse_campaign(data, "p.yaml")
+
+
+def test_imm_pairs_are_the_15_two_channel_sets_in_table_2_order() -> None:
+    campaign = pair_campaign(variants={"imm": "pairs"})
+    ((variant, modes),) = campaign.variants
+    assert variant == "imm" and [m.name for m in modes] == [
+        "x+y", "x+z", "x+p", "x+q", "x+r", "y+z", "y+p", "y+q", "y+r", "z+p", "z+q", "z+r",
+        "p+q", "p+r", "q+r",
+    ]  # fmt: skip
+    assert [m.paper_index for m in modes] == list(range(8, 23))
+    listed = pair_campaign(variants={"imm": ["p+r", "x+q"]})
+    assert [m.name for m in listed.variants[0][1]] == ["x+q", "p+r"]
+
+
+def test_pairs_fly_each_gap_and_kind_while_singles_fly_once() -> None:
+    runs = pair_campaign().runs()
+    imm = [r for r in runs if r.variant == "imm"]
+    pairs = [r for r in imm if r.pair_gap_s is not None]
+    # per air and replicate: fault-free once, 6 singles x 2 kinds, 15 pairs x 2 kinds x 2 gaps
+    assert len(imm) == 2 * 2 * (1 + 6 * 2 + 15 * 2 * 2) == 4 * 73
+    assert len(pairs) == 4 * 60 and {r.pair_gap_s for r in pairs} == {0.0, 10.0}
+    assert all(len(r.mode.channels) == 2 for r in pairs)
+    assert all(r.pair_gap_s is None and r.second_fault is None for r in imm if r not in pairs)
+    # UKF-2 flies its two-channel set at once, as one fault, without a gap axis
+    ukf2 = [r for r in runs if r.variant == "ukf2"]
+    assert len(ukf2) == 2 * 2 * 2 and all(r.pair_gap_s is None for r in ukf2)
+    assert all(r.scenario.faults[0].t_s == r.scenario.faults[-1].t_s for r in ukf2)
+    assert len({r.run_id for r in runs}) == len(runs)
+    assert [r.index for r in runs] == list(range(len(runs)))
+    xq = [r.run_id for r in pairs if r.mode.name == "x+q" and r.air == "calm"]
+    assert sum("+g10/" in i for i in xq) == sum("+g0/" in i for i in xq) == 4
+
+
+def test_the_second_channel_of_a_pair_fails_gap_seconds_after_the_first() -> None:
+    runs = pair_campaign().runs()
+    cells: dict[tuple, set[float]] = {}
+    for r in runs:
+        if r.pair_gap_s is None:
+            continue
+        first, second = r.scenario.faults
+        assert first.channels == r.mode.channels[:1] and second.channels == r.mode.channels[1:]
+        assert first.t_s == r.fault_t_s and 20.0 <= r.fault_t_s <= 70.0
+        assert second.t_s == pytest.approx(r.fault_t_s + r.pair_gap_s, abs=1e-9)
+        assert r.second_fault == second.channels[0] and r.second_t_s == second.t_s
+        assert r.fault_value == first.value and first.kind == second.kind == r.fault_kind
+        # the same onset for both gaps and kinds of a cell: the gap is all that differs
+        cells.setdefault((r.replicate, r.air, r.mode.name), set()).add(r.fault_t_s)
+    assert len(cells) == 2 * 2 * 15 and all(len(times) == 1 for times in cells.values())
+
+
+def test_each_channel_of_a_pair_draws_its_own_size_in_its_sensors_range() -> None:
+    runs = pair_campaign().runs()
+    bias = [r for r in runs if r.pair_gap_s is not None and r.fault_kind == "bias"]
+    sizes: dict[str, list[float]] = {"accel": [], "gyro": []}
+    for r in bias:
+        for fault in r.scenario.faults:
+            sensor = "accel" if fault.channels[0] in "xyz" else "gyro"
+            sizes[sensor].append(fault.value)
+    assert all(0.1 <= abs(v) <= 2.0 for v in sizes["accel"])  # m/s^2
+    assert all(0.01 <= abs(v) <= 0.1 for v in sizes["gyro"])  # rad/s
+    assert min(sizes["gyro"]) < 0 < max(sizes["gyro"]) and min(sizes["accel"]) < 0
+    # two gyros of one pair get two draws, and a channel's size differs between its pairs
+    pq = next(r for r in bias if r.mode.name == "p+q")
+    assert pq.scenario.faults[0].value != pq.scenario.faults[1].value
+    x_sizes = {r.scenario.faults[0].value for r in bias if r.mode.channels[0] == "x"}
+    assert len(x_sizes) == 5 * 2 * 2  # 5 pairs x 2 airs x 2 replicates (both gaps alike)
+    zero = [r for r in runs if r.pair_gap_s is not None and r.fault_kind == "zero"]
+    assert {f.value for r in zero for f in r.scenario.faults} == {0.0}
+
+
+def test_pair_runs_do_not_depend_on_what_else_the_campaign_flies() -> None:
+    """Times and sizes come from the seed, the cell and the channel, not from a run's index:
+    a campaign of one pair, or its runs in another order (--jobs), flies the same faults."""
+
+    def faults(runs) -> dict[str, tuple]:
+        return {r.run_id: r.scenario.faults for r in runs if r.pair_gap_s is not None}
+
+    full = faults(pair_campaign().runs())
+    alone = faults(pair_campaign(variants={"imm": ["x+q"]}, air=[{"name": "calm"}]).runs())
+    assert len(alone) == 2 * 2 * 2 and all(full[k] == v for k, v in alone.items())
+    assert faults(pair_campaign().runs()) == full
+    assert faults(pair_campaign(seed=8).runs()) != full
+
+
+def test_a_pair_figure_run_flies_the_first_gap() -> None:
+    campaign = pair_campaign(figure={"variant": "imm", "fault": "x+q"}, pair_gaps_s=[5, 10])
+    spec = campaign.figure_run()
+    assert spec is not None and spec.pair_gap_s == 5.0 and spec.second_t_s == spec.fault_t_s + 5

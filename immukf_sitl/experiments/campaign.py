@@ -14,12 +14,15 @@ A wrong file gets one line naming the file, the field and what was expected
                                    # the path of a scenario file, relative to this file
     variants:                      # required: each variant and the fault sets it flies
       ukf1: all_64                 # all_64 (the paper's Table 2) | single (none, x .. r) |
-      ukf2: all_64                 # a list of modes: [none, q, x+q]
-      ukf3: all_64
-      imm: single
+      ukf2: all_64                 # pairs (the 15 two-channel sets, x+y .. q+r) |
+      ukf3: all_64                 # a list of modes: [none, q, x+q]
+      imm: single                  # the IMM: single modes, and pairs with fault_modes: untrusted
     fault_times_s: [5.0]           # optional axis (default [5.0]): when the channels go dead;
                                    # or {uniform: [20, 80]}: one time per (replicate, air entry,
                                    # fault set), drawn from the seed (see "Random fault times")
+    pair_gaps_s: [0]               # optional axis (default [0]) of the IMM's pairs only: the
+                                   # second channel fails this long (s) after the first, 0 at
+                                   # the same instant (see "Pairs")
     filter_model: paper            # optional axis: paper (12 states) | real-air (30 states),
                                    # or a list of both (as --filter-model)
     fault_modes: zero              # optional: zero (the paper's) | untrusted, as --fault-modes
@@ -46,8 +49,9 @@ A wrong file gets one line naming the file, the field and what was expected
     figure: {variant: imm, fault: q}   # optional: the run re-flown for fig2.png
 
 The runs are the product, in this order: filter model, air, loop, fault time, variant (ukf1,
-ukf2, ukf3, imm), fault set (Table 2 order), replicate. A run's index is its place in that order;
-nothing random depends on it, so results do not depend on how many jobs run them.
+ukf2, ukf3, imm), fault set (Table 2 order), fault kind, pair gap, replicate. A run's index is
+its place in that order; nothing random depends on it, so results do not depend on how many jobs
+run them.
 
 **Airframe draws.** A scenario's ``airframe: uncertainty`` is drawn from the scenario seed
 (:func:`immukf_sitl.models.airframe.airframe_factors`), and the scenario seed of replicate ``r``
@@ -70,6 +74,14 @@ same for every variant, loop and filter model of a cell, so that UKF-2, UKF-3 an
 one cell lose the channel at the same moment, different across replicates, airs and fault sets,
 and independent of ``--jobs``. A fault-free run has a drawn time too; nothing uses it but its
 ``run_id``.
+
+**Pairs.** A two-channel fault set of the IMM (``fault_modes: untrusted``: the zero modes' bank
+holds single faults) is a *pair run*, flown once per ``pair_gaps_s`` entry: the first channel (in
+x y z p q r order) fails at the run's fault time, the second ``gap`` seconds later, each with its
+own fault and its own size, drawn in the range of its sensor from the fault kinds' key above
+plus the channel's bit (``1 << channel index``). Its ``run_id`` carries the gap after the time
+(``t31.58+g10``); single-fault and fault-free runs are flown once, as before. The UKF variants
+fly a multi-channel set as one fault at one time, as before: their filters hold one mode.
 """
 
 from __future__ import annotations
@@ -100,7 +112,7 @@ from immukf_sitl.service.filters import VARIANTS
 from immukf_sitl.yaml_fields import YamlFields
 
 LOOPS = ("closed", "open")
-FAULT_SET_NAMES = ("all_64", "single")
+FAULT_SET_NAMES = ("all_64", "single", "pairs")
 #: ``filter_model`` values (as ``--filter-model``): the paper's 12-state model, the 30-state one
 FILTER_MODELS = tuple(MODEL_TYPES)
 #: ``report`` values: the paper's tables, or the real-air matrix
@@ -113,6 +125,8 @@ FAULT_VALUE_STREAM = 0xFA18
 SIGNED_KINDS = ("bias", "drift", "spikes")
 #: drawn fault times are rounded to this (s): the IMU's period
 FAULT_TIME_RESOLUTION_S = 0.01
+#: the sensor of each channel (a fault kind's size range is per sensor)
+SENSOR_CHANNELS = (("accel", ("x", "y", "z")), ("gyro", ("p", "q", "r")))
 #: scenario fields a campaign sets itself
 _CAMPAIGN_SCENARIO_FIELDS = ("name", "seed", "faults", "expect")
 
@@ -178,18 +192,40 @@ class FaultKindSpec:
             return (FaultSpec(t_s, channels, self.kind, 0.0, None, self.rate_hz or 0.0),)
         rng = np.random.default_rng(np.random.SeedSequence(key))
         out = []
-        for sensor, names in (("accel", ("x", "y", "z")), ("gyro", ("p", "q", "r"))):
+        for sensor, names in SENSOR_CHANNELS:
             mine = tuple(c for c in channels if c in names)
             if not mine:
                 continue
-            span = getattr(self, sensor)
-            value = 0.0
-            if span is not None:
-                value = float(rng.uniform(*span))
-                if self.kind in SIGNED_KINDS and rng.random() < 0.5:
-                    value = -value
+            value = self._size(sensor, rng)
             out.append(FaultSpec(t_s, mine, self.kind, round(value, 6), None, self.rate_hz or 0.0))
         return tuple(out)
+
+    def channel_fault(self, channel: str, t_s: float, key: tuple[int, ...]) -> FaultSpec:
+        """The fault of one channel of a pair at ``t_s``; its size drawn from ``key``'s stream."""
+        rng = np.random.default_rng(np.random.SeedSequence(key))
+        sensor = next(s for s, names in SENSOR_CHANNELS if channel in names)
+        value = self._size(sensor, rng)
+        return FaultSpec(t_s, (channel,), self.kind, round(value, 6), None, self.rate_hz or 0.0)
+
+    def _size(self, sensor: str, rng: np.random.Generator) -> float:
+        """A size in ``sensor``'s range (0 without one), of either sign for a signed kind."""
+        span = getattr(self, sensor)
+        if span is None:
+            return 0.0
+        value = float(rng.uniform(*span))
+        if self.kind in SIGNED_KINDS and rng.random() < 0.5:
+            value = -value
+        return value
+
+
+def pair_fault_modes() -> tuple[FaultMode, ...]:
+    """The 15 two-channel fault sets, x+y .. q+r, in the paper's Table 2 order."""
+    return tuple(m for m in all_fault_modes() if len(m.channels) == 2)
+
+
+def is_pair(variant: str, mode: FaultMode) -> bool:
+    """Whether ``variant`` flies ``mode`` as a pair run: the IMM on two channels."""
+    return variant == "imm" and len(mode.channels) == 2
 
 
 @dataclass(frozen=True)
@@ -220,6 +256,8 @@ class RunSpec:
         ``untrusted`` or ``zero``: what its fault modes predict (as ``--fault-modes``).
     fault_kind : str
         How the fault set's channels fail (:data:`immukf_sitl.fault_kinds.FAULT_KINDS`).
+    pair_gap_s : float or None
+        A pair run: how long after the first channel the second fails (s); None otherwise.
     """
 
     index: int
@@ -235,15 +273,30 @@ class RunSpec:
     filter_model: str = "paper"
     fault_modes: str = "zero"
     fault_kind: str = "zero"
+    pair_gap_s: float | None = None
 
     @property
     def run_id(self) -> str:
-        """A stable key of the run (``--resume`` matches rows by it; a zero fault adds nothing)."""
+        """A stable key of the run (``--resume`` matches rows by it; a zero fault adds nothing).
+
+        A pair run adds its gap to the time: ``t31.58+g10``.
+        """
         kind = "" if self.fault_kind == "zero" else f"/{self.fault_kind}"
+        gap = "" if self.pair_gap_s is None else f"+g{self.pair_gap_s:g}"
         return (
-            f"{self.variant}/{self.mode.name}/r{self.replicate}/t{self.fault_t_s:g}/"
+            f"{self.variant}/{self.mode.name}/r{self.replicate}/t{self.fault_t_s:g}{gap}/"
             f"{self.loop}/{self.air}/{self.filter_model}{kind}"
         )
+
+    @property
+    def second_fault(self) -> str | None:
+        """The channel of a pair run that fails second (None for any other run)."""
+        return None if self.pair_gap_s is None else self.mode.channels[1]
+
+    @property
+    def second_t_s(self) -> float | None:
+        """When the second channel of a pair run fails (s; None for any other run)."""
+        return None if self.pair_gap_s is None else self.scenario.faults[-1].t_s
 
     @property
     def fault_value(self) -> float:
@@ -279,14 +332,15 @@ class Campaign:
     report: str = "paper"
     fault_modes: str = "zero"
     fault_kinds: tuple[FaultKindSpec, ...] = (FaultKindSpec(),)
+    pair_gaps_s: tuple[float, ...] = (0.0,)
 
     @property
     def digest(self) -> str:
         """Everything that decides the runs' results, as canonical JSON (``--resume`` checks it).
 
-        The variants, fault sets, replicates and loops are not in it: they choose which runs
-        there are, and a run's row is found by its ``run_id``. The filter models are in it
-        (as well as in the ``run_id``), so that ``--resume`` refuses a changed model.
+        The variants, fault sets, replicates, loops and pair gaps are not in it: they choose
+        which runs there are, and a run's row is found by its ``run_id``. The filter models are
+        in it (as well as in the ``run_id``), so that ``--resume`` refuses a changed model.
         """
         data = {
             "seed": self.seed,
@@ -311,6 +365,14 @@ class Campaign:
             return (self.fault_times_s.draw(self.seed, replicate, air.name, mode),)
         return self.fault_times_s
 
+    def pair_gaps_for(self, variant: str, mode: FaultMode) -> tuple[float | None, ...]:
+        """The gaps a fault set is flown with: the pair gaps for a pair, else one run (None)."""
+        return self.pair_gaps_s if is_pair(variant, mode) else (None,)
+
+    def imm_pairs(self) -> tuple[FaultMode, ...]:
+        """The two-channel fault sets the IMM flies (pair runs)."""
+        return tuple(m for v, modes in self.variants for m in modes if is_pair(v, m))
+
     def _time_slots(self) -> int:
         """How many fault times each cell has (1 when drawn)."""
         if isinstance(self.fault_times_s, UniformFaultTimes):
@@ -324,8 +386,13 @@ class Campaign:
         fault_t_s: float,
         air: AirSpec,
         kind: FaultKindSpec | None = None,
+        gap_s: float | None = None,
     ) -> Scenario:
-        """The scenario of one run (its seed, air and fault of ``kind``, default zero)."""
+        """The scenario of one run (its seed, air and fault of ``kind``, default zero).
+
+        With ``gap_s`` (a pair run) each of the two channels gets its own fault, the second
+        ``gap_s`` after the first.
+        """
         base = self._base_scenario(air)
         if fault_t_s >= base.duration_s:
             raise CampaignError(
@@ -339,13 +406,39 @@ class Campaign:
                 self.seed, FAULT_VALUE_STREAM, replicate, zlib.crc32(air.name.encode("utf-8")),
                 mode.bits, zlib.crc32(kind.kind.encode("utf-8")),
             )  # fmt: skip
-            faults = kind.faults(mode.channels, fault_t_s, key)
+            if gap_s is None:
+                faults = kind.faults(mode.channels, fault_t_s, key)
+            else:
+                faults = self._pair_faults(mode, fault_t_s, gap_s, kind, key, base)
         suffix = "" if kind.kind == "zero" else f"-{kind.kind}"
+        suffix += "" if gap_s is None else f"-g{gap_s:g}"
         return dataclasses.replace(
             base,
             name=f"{self.name}-{mode.name}{suffix}-r{replicate}",
             seed=self.replicate_seed(replicate),
             faults=faults,
+        )
+
+    def _pair_faults(
+        self,
+        mode: FaultMode,
+        fault_t_s: float,
+        gap_s: float,
+        kind: FaultKindSpec,
+        key: tuple[int, ...],
+        base: Scenario,
+    ) -> tuple[FaultSpec, FaultSpec]:
+        """The two faults of a pair run: one per channel, the second ``gap_s`` later."""
+        first, second = mode.channels
+        second_t_s = round(fault_t_s + gap_s, 6)
+        if second_t_s >= base.duration_s:
+            raise CampaignError(
+                f"{self.path}: pair_gaps_s: expected the second fault before the scenario's end "
+                f"({base.duration_s:g} s), got {second_t_s:g} s ({fault_t_s:g} + {gap_s:g})"
+            )
+        return (
+            kind.channel_fault(first, fault_t_s, key + (FaultMode.from_name(first).bits,)),
+            kind.channel_fault(second, second_t_s, key + (FaultMode.from_name(second).bits,)),
         )
 
     def _base_scenario(self, air: AirSpec) -> Scenario:
@@ -368,7 +461,7 @@ class Campaign:
         """Every run, in the campaign's order."""
         out: list[RunSpec] = []
         cells = [
-            (model, air, loop, slot, variant, mode, kind, replicate)
+            (model, air, loop, slot, variant, mode, kind, gap_s, replicate)
             for model in self.filter_models
             for air in self.air
             for loop in self.loops
@@ -376,9 +469,10 @@ class Campaign:
             for variant, modes in self.variants
             for mode in modes
             for kind in (self.fault_kinds if mode.bits else self.fault_kinds[:1])
+            for gap_s in self.pair_gaps_for(variant, mode)
             for replicate in range(self.replicates)
         ]
-        for model, air, loop, slot, variant, mode, kind, replicate in cells:
+        for model, air, loop, slot, variant, mode, kind, gap_s, replicate in cells:
             fault_t_s = self.fault_times_for(replicate, air, mode)[slot]
             out.append(
                 RunSpec(
@@ -390,11 +484,12 @@ class Campaign:
                     fault_t_s=fault_t_s,
                     loop=loop,
                     air=air.name,
-                    scenario=self.scenario_for(mode, replicate, fault_t_s, air, kind),
+                    scenario=self.scenario_for(mode, replicate, fault_t_s, air, kind, gap_s),
                     failure=self.failure,
                     filter_model=model,
                     fault_modes=self.fault_modes,
                     fault_kind=kind.kind if mode.bits else "zero",
+                    pair_gap_s=gap_s,
                 )
             )
         return tuple(out)
@@ -409,6 +504,7 @@ class Campaign:
             if variant == self.figure.variant and mode in modes:
                 air = self.air[0]
                 t_s = self.fault_times_for(0, air, mode)[0]
+                gap_s = self.pair_gaps_for(variant, mode)[0]
                 return RunSpec(
                     index=-1,
                     variant=variant,
@@ -418,10 +514,11 @@ class Campaign:
                     fault_t_s=t_s,
                     loop=self.loops[0],
                     air=air.name,
-                    scenario=self.scenario_for(mode, 0, t_s, air),
+                    scenario=self.scenario_for(mode, 0, t_s, air, gap_s=gap_s),
                     failure=self.failure,
                     filter_model=self.filter_models[0],
                     fault_modes=self.fault_modes,
+                    pair_gap_s=gap_s,
                 )
         return None
 
@@ -440,7 +537,9 @@ def _fault_set(r: YamlFields, variant: str, value: Any) -> tuple[FaultMode, ...]
         return all_fault_modes()
     if value == "single":
         return single_fault_modes()
-    expected = "all_64, single or a list of fault modes (none, q, x+q, ...)"
+    if value == "pairs":
+        return pair_fault_modes()
+    expected = "all_64, single or a list of fault modes (none, q, x+q, ...), or pairs"
     if not isinstance(value, list) or not value:
         raise CampaignError(f"{r.path}: {where}: expected {expected}, got {value!r}")
     modes = []
@@ -471,12 +570,11 @@ def _variants(r: YamlFields) -> tuple[tuple[str, tuple[FaultMode, ...]], ...]:
             )
         modes = _fault_set(r, variant, raw[variant])
         if variant == "imm":
-            singles = set(single_fault_modes())
-            extra = [m.name for m in modes if m not in singles]
+            extra = [m.name for m in modes if len(m.channels) > 2]
             if extra:
                 raise CampaignError(
-                    f"{r.path}: variants.imm: the IMM's bank holds the 7 single modes; "
-                    f"got {extra[0]} (use ukf1 for multiple faults)"
+                    f"{r.path}: variants.imm: the IMM flies single faults and pairs; "
+                    f"got {extra[0]} (use ukf1 for three or more channels)"
                 )
         out.append((variant, modes))
     out.sort(key=lambda item: VARIANTS.index(item[0]))
@@ -494,6 +592,21 @@ def _number_list(r: YamlFields, key: str, default: list[float], lo: float) -> tu
     if not ok or len(set(value)) != len(value):
         r.fail(key, f"a list of distinct numbers >= {lo:g}", value)
     return tuple(float(v) for v in value)
+
+
+def _check_pairs(r: YamlFields, campaign: Campaign) -> None:
+    """Pairs only with the untrusted modes; ``pair_gaps_s`` only with pairs to fly."""
+    pairs = campaign.imm_pairs()
+    if pairs and campaign.fault_modes != "untrusted":
+        raise CampaignError(
+            f"{r.path}: variants.imm: the IMM's bank holds the 7 single modes with fault_modes: "
+            f"{campaign.fault_modes}; got {pairs[0].name} (pairs need fault_modes: untrusted)"
+        )
+    if r.has("pair_gaps_s") and not pairs:
+        raise CampaignError(
+            f"{r.path}: pair_gaps_s: only for pair runs, and variants.imm has no two-channel "
+            "fault set (variants: imm: pairs)"
+        )
 
 
 def _fault_times(r: YamlFields) -> tuple[float, ...] | UniformFaultTimes:
@@ -660,18 +773,23 @@ def parse_campaign(data: Any, path: str = "<campaign>") -> Campaign:
         report=r.string("report", "paper"),
         fault_modes=r.string("fault_modes", "zero"),
         fault_kinds=_fault_kinds(r),
+        pair_gaps_s=_number_list(r, "pair_gaps_s", [0.0], lo=0.0),
     )
     if campaign.fault_modes not in FAULT_SIGNATURES:
         r.fail("fault_modes", " or ".join(FAULT_SIGNATURES), campaign.fault_modes)
     if campaign.report not in REPORT_KINDS:
         r.fail("report", " or ".join(REPORT_KINDS), campaign.report)
     r.done()
+    _check_pairs(r, campaign)
     times = campaign.fault_times_s
     if isinstance(times, UniformFaultTimes):
         times = (times.hi_s,)  # the latest time a draw can give
+    pairs = campaign.imm_pairs()
     for air in campaign.air:  # every air entry and fault time must make a valid scenario
         for t_s in times:
             campaign.scenario_for(FaultMode.from_name("q"), 0, t_s, air)
+            if pairs:  # and the latest second fault of a pair
+                campaign.scenario_for(pairs[0], 0, t_s, air, gap_s=max(campaign.pair_gaps_s))
     return campaign
 
 
