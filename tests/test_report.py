@@ -141,3 +141,30 @@ def test_a_double_fault_is_detected_once_both_channels_are_declared_together():
     ]
     s = summarize("t", [fault], truth, one_at_a_time, _track(truth), TimingStats(1.0, 1.0, 1.0))
     assert s.to_json()["faults"][0]["detected_t_s"] is None
+
+
+def test_each_fault_of_a_pair_is_matched_to_the_declaration_of_its_own_channel():
+    """x fails at 1 s, q at 2 s, each its own fault: each is detected by the declaration that
+    added its channel to the declared set, x's still standing. A q declared before q failed
+    (falsely) is not detected by a later declaration of another channel."""
+    truth = _truth(400, lambda t: 0.05)
+    x, q, y = (FaultMode.from_name(c) for c in "xqy")
+    faults = [FaultSpec(1.0, ("x",), "zero"), FaultSpec(2.0, ("q",), "zero")]
+    xq, xqy = FaultMode.from_name("x+q"), FaultMode.from_name("x+q+y")
+    in_turn = [
+        DetectionEvent("detected", x, 1.2, 0.99, declared_after=x),
+        DetectionEvent("detected", q, 2.4, 0.98, declared_after=xq),
+    ]
+    s = summarize("t", faults, truth, in_turn, _track(truth), TimingStats(1.0, 1.0, 1.0))
+    first, second = s.faults
+    assert (first.detected_t_s, second.detected_t_s) == (1.2, 2.4) and s.false_alarms == ()
+    assert second.observable_t_s == pytest.approx(2.0)
+    assert second.detection_delay_s == pytest.approx(0.4)
+    q_too_early = [
+        DetectionEvent("detected", x, 1.2, 0.99, declared_after=x),
+        DetectionEvent("detected", q, 1.5, 0.97, declared_after=xq),
+        DetectionEvent("detected", y, 2.3, 0.96, declared_after=xqy),
+    ]
+    s = summarize("t", faults, truth, q_too_early, _track(truth), TimingStats(1.0, 1.0, 1.0))
+    assert s.faults[0].detected_t_s == 1.2 and s.faults[1].detected_t_s is None
+    assert [e.mode.name for e in s.false_alarms] == ["q", "y"]

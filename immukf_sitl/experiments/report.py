@@ -269,7 +269,12 @@ def _declared_sets(events: Sequence[DetectionEvent]) -> list[tuple[DetectionEven
 def _first_declaration(
     fault: FaultSpec, sets: Sequence[tuple[DetectionEvent, int]]
 ) -> DetectionEvent | None:
-    """The first detection after ``fault`` began that left all its channels declared at once."""
+    """The first detection after ``fault`` began that declared one of its channels, all declared.
+
+    The detection must name one of the fault's channels: a channel declared before its fault
+    began (falsely) is not declared again, and a later declaration of another channel, which
+    leaves it declared too, is not this fault's.
+    """
     bits = fault.mode.bits
     return next(
         (
@@ -277,6 +282,7 @@ def _first_declaration(
             for event, declared in sets
             if event.kind == "detected"
             and event.t_s >= fault.t_s - 1e-9
+            and event.mode.bits & bits
             and declared & bits == bits
         ),
         None,
