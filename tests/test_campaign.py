@@ -738,3 +738,105 @@ def test_a_pair_figure_run_flies_the_first_gap() -> None:
     campaign = pair_campaign(figure={"variant": "imm", "fault": "x+q"}, pair_gaps_s=[5, 10])
     spec = campaign.figure_run()
     assert spec is not None and spec.pair_gap_s == 5.0 and spec.second_t_s == spec.fault_t_s + 5
+
+
+def _fake_run(spec, events: list, end_s: float = 4.0):
+    """A flown run's stand-in: a summary of ``events`` over level flight with q at 0.05 rad/s
+    and a 0.5 m/s^2 x specific force (a zeroed x or q shows at once), first estimate at 0 s."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from immukf_sitl.experiments.report import EstimateTrack, summarize
+    from immukf_sitl.samples import TruthSample
+    from immukf_sitl.service.timing import TimingStats
+
+    truth = [
+        TruthSample(k * 0.01, 47.0, 8.0, 150.0, np.array([0.1, 0.05, 1.0]),
+                    np.array([0.0, 0.05, 0.0]), np.array([25.0, 0.0, 0.0]),
+                    np.array([0.5, 0.0, -9.8]))
+        for k in range(int(end_s / 0.01))
+    ]  # fmt: skip
+    t = np.array([s.t_s for s in truth])
+    lla = np.array([(s.lat_deg, s.lon_deg, s.alt_m) for s in truth])
+    track = EstimateTrack(t, np.array([s.euler_rad for s in truth]), t, lla)
+    summary = summarize(spec.scenario.name, spec.scenario.faults, truth, events, track,
+                        TimingStats())  # fmt: skip
+    history = SimpleNamespace(outputs=[SimpleNamespace(t_s=0.0)], events=lambda: events)
+    return SimpleNamespace(
+        summary=lambda: summary, history=history, records=[SimpleNamespace(time_s=end_s)]
+    )
+
+
+def test_the_metrics_of_a_pair_run_describe_the_first_fault_then_the_second() -> None:
+    from immukf_sitl.estimation.fault_modes import FaultMode
+    from immukf_sitl.experiments.metrics import identification_metrics
+    from immukf_sitl.service.detection import DetectionEvent
+
+    def event(kind: str, channel: str, t_s: float, after: str) -> DetectionEvent:
+        mode, declared = FaultMode.from_name(channel), FaultMode.from_name(after)
+        return DetectionEvent(kind, mode, t_s, 0.99, declared_after=declared)
+
+    data = tiny(variants={"imm": ["x+q"]}, fault_modes="untrusted", fault_times_s=[1.0],
+                pair_gaps_s=[0, 1.5])  # fmt: skip
+    at_once, later = parse_campaign(data, "c.yaml").runs()
+    assert (later.pair_gap_s, later.second_t_s) == (1.5, 2.5)
+    events = [
+        event("detected", "y", 0.5, "y"),  # before any fault
+        event("cleared", "y", 0.8, "none"),
+        event("detected", "x", 1.3, "x"),
+        event("detected", "z", 2.0, "x+z"),  # a healthy channel beside x
+        event("detected", "q", 3.1, "x+z+q"),
+        event("cleared", "z", 3.5, "x+q"),
+    ]
+    m = identification_metrics(later, _fake_run(later, events))
+    assert (m["identified"], m["identified_ok"], m["identified_within_1s"]) == ("x", True, True)
+    assert m["observable_t_s"] == 1.0 and m["detection_delay_s"] == pytest.approx(0.3)
+    assert m["second_observable_t_s"] == 2.5 and m["second_detected_t_s"] == 3.1
+    assert m["second_detection_delay_s"] == pytest.approx(0.6)
+    assert m["second_identified_within_1s"] is True and m["second_named_kind"] is None
+    assert (m["false_declarations"], m["false_declarations_fault_free"]) == (2, 1)
+    assert m["declared_at_end"] == "x+q" and m["declarations"] == "y@0.50 x@1.30 z@2.00 q@3.10"
+    # at once, q declared first: the first declaration is not the first channel's, and x,
+    # declared 0.9 s after it showed, is not "identified" though the second is within 1 s
+    events = [event("detected", "q", 1.2, "q"), event("detected", "x", 1.9, "x+q")]
+    m = identification_metrics(at_once, _fake_run(at_once, events))
+    assert (m["identified"], m["identified_ok"], m["identified_within_1s"]) == ("q", False, False)
+    assert m["detection_delay_s"] == pytest.approx(0.9)
+    assert m["second_detection_delay_s"] == pytest.approx(0.2)
+    assert m["second_identified_within_1s"] is True and m["false_declarations"] == 0
+    # the second channel never declared: not identified, the first still is
+    only_x = [event("detected", "x", 1.3, "x")]
+    m = identification_metrics(later, _fake_run(later, only_x))
+    assert m["second_detected_t_s"] is None and m["second_identified_within_1s"] is False
+    assert m["identified_within_1s"] is True and m["declared_at_end"] == "x"
+
+
+def test_a_pair_runs_row_names_its_second_fault_and_single_rows_leave_it_empty(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    def not_flown(scenario, config, **kwargs):
+        raise RuntimeError("not flown")
+
+    monkeypatch.setattr(campaign_run, "run_inprocess", not_flown)
+    data = tiny(variants={"imm": ["q", "x+q"]}, fault_modes="untrusted", fault_times_s=[1.0],
+                pair_gaps_s=[1.5])  # fmt: skip
+    single, pair = (campaign_run.execute_run(s) for s in parse_campaign(data, "c.yaml").runs())
+    assert pair["run_id"] == "imm/x+q/r0/t1+g1.5/closed/default/paper"
+    assert (pair["second_fault"], pair["second_t_s"], pair["fault_t_s"]) == ("q", "2.5", "1")
+    assert all(single[c] == "" for c in campaign_run.PAIR_COLUMNS)
+    assert list(pair) == list(COLUMNS)
+
+
+def test_a_runs_csv_written_before_the_pair_columns_still_reads(tmp_path: Path) -> None:
+    old = [c for c in COLUMNS if c not in campaign_run.PAIR_COLUMNS]
+    path = tmp_path / "runs.csv"
+    with path.open("w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=old, lineterminator="\n")
+        writer.writeheader()
+        writer.writerow(dict.fromkeys(old, "1"))
+    (row,) = read_rows(path)
+    assert list(row) == list(COLUMNS) and row["index"] == "1" and row["second_fault"] == ""
+    path.write_text("index,run_id\n0,a\n")
+    with pytest.raises(UserError, match="columns differ"):
+        read_rows(path)

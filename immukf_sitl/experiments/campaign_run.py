@@ -72,13 +72,33 @@ COLUMNS: tuple[str, ...] = (
     "identified_within_1s",
     "named_kind",
     "named_size",
+    "second_fault",
+    "second_t_s",
+    "second_observable_t_s",
+    "second_detected_t_s",
+    "second_detection_delay_s",
+    "second_identified_within_1s",
+    "second_named_kind",
     "false_declarations",
     "fault_free_s",
     "false_declarations_fault_free",
     "declarations",
+    "declared_at_end",
     "realignments",
     "error",
 )
+#: the columns pair runs added: a ``runs.csv`` written before them still reads, with them empty
+PAIR_COLUMNS = (
+    "second_fault",
+    "second_t_s",
+    "second_observable_t_s",
+    "second_detected_t_s",
+    "second_detection_delay_s",
+    "second_identified_within_1s",
+    "second_named_kind",
+    "declared_at_end",
+)
+_COLUMNS_BEFORE_PAIRS = tuple(c for c in COLUMNS if c not in PAIR_COLUMNS)
 RUNS_CSV = "runs.csv"
 CAMPAIGN_JSON = "campaign.json"
 
@@ -107,6 +127,8 @@ def _identity(spec: RunSpec) -> dict[str, object]:
         "replicate": spec.replicate,
         "seed": spec.seed,
         "fault_t_s": spec.fault_t_s,
+        "second_fault": spec.second_fault,
+        "second_t_s": spec.second_t_s,
         "loop": spec.loop,
         "air": spec.air,
         "filter_model": spec.filter_model,
@@ -167,14 +189,17 @@ def _row_of(future: Future, spec: RunSpec) -> dict[str, str]:
 
 
 def read_rows(path: Path) -> list[dict[str, str]]:
-    """The rows of a ``runs.csv`` (empty if there is none)."""
+    """The rows of a ``runs.csv`` (empty if there is none).
+
+    A file written before :data:`PAIR_COLUMNS` existed reads with those cells empty.
+    """
     if not path.exists():
         return []
     with path.open(newline="", encoding="utf-8") as f:
         reader = csv.DictReader(f)
-        if tuple(reader.fieldnames or ()) != COLUMNS:
+        if tuple(reader.fieldnames or ()) not in (COLUMNS, _COLUMNS_BEFORE_PAIRS):
             raise UserError(f"{path}: not a runs.csv of this version (columns differ)")
-        return list(reader)
+        return [{k: row.get(k, "") for k in COLUMNS} for row in reader]
 
 
 def write_rows(path: Path, rows: Iterable[dict[str, str]]) -> None:

@@ -266,6 +266,12 @@ def _declared_sets(events: Sequence[DetectionEvent]) -> list[tuple[DetectionEven
     return out
 
 
+def declared_at_end(events: Sequence[DetectionEvent]) -> FaultMode:
+    """What the detector held declared after its last declaration or release (none: fault-free)."""
+    sets = _declared_sets(events)
+    return FaultMode(sets[-1][1]) if sets else FaultMode(0)
+
+
 def _first_declaration(
     fault: FaultSpec, sets: Sequence[tuple[DetectionEvent, int]]
 ) -> DetectionEvent | None:
