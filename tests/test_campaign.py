@@ -840,3 +840,77 @@ def test_a_runs_csv_written_before_the_pair_columns_still_reads(tmp_path: Path) 
     path.write_text("index,run_id\n0,a\n")
     with pytest.raises(UserError, match="columns differ"):
         read_rows(path)
+
+
+def test_the_matrix_summary_gives_pairs_per_gap_apart_from_the_single_faults() -> None:
+    from immukf_sitl.experiments.campaign_render import matrix_markdown
+    from immukf_sitl.experiments.campaign_summary import matrix_summary
+
+    def pair(fault: str, second_t: str, **cells: str) -> dict[str, str]:
+        second = fault.split("+")[1]
+        return _row(variant="imm", fault=fault, fault_t_s="40", second_fault=second,
+                    second_t_s=second_t, n_faults="2", **cells)  # fmt: skip
+
+    single = _row(variant="imm", fault="q", fault_t_s="40", observable_t_s="41",
+                  detection_delay_s="0.4", identified="q", identified_ok="true",
+                  identified_within_1s="true", fault_free_s="37",
+                  false_declarations_fault_free="0")  # fmt: skip
+    rows = [
+        pair("x+q", "40", observable_t_s="40.1", detection_delay_s="0.3",
+             second_observable_t_s="40.2", second_detection_delay_s="0.5",
+             second_identified_within_1s="true", declared_at_end="x+q",
+             declarations="x@40.40 q@40.70"),
+        pair("p+r", "40", observable_t_s="40.1", detection_delay_s="1.4",
+             second_observable_t_s="41", second_detection_delay_s="0.2",
+             second_identified_within_1s="true", declared_at_end="p+r+y",
+             declarations="r@41.20 p@41.50 y@45.00"),
+        pair("x+y", "40", second_identified_within_1s="false", declared_at_end="none",
+             status="critical", failure="diverged", failure_t_s="42"),
+        pair("x+q", "50", observable_t_s="40.1", detection_delay_s="0.2",
+             second_observable_t_s="50.1", second_detection_delay_s="2.0",
+             second_identified_within_1s="false", declared_at_end="x+q",
+             declarations="z@30.00 x@40.30 q@52.10"),
+        pair("y+z", "50", observable_t_s="40.5", detection_delay_s="0.4",
+             second_observable_t_s="50.3", second_detection_delay_s="0.6",
+             second_identified_within_1s="true", declared_at_end="y",
+             declarations="y@40.90 z@50.90 r@51.00"),
+        pair("p+q", "50", status="error"),  # failed to run: left out
+        single,
+    ]  # fmt: skip
+    summary = matrix_summary(rows)["real-air"]
+    # the single-fault identification holds the single fault only
+    assert summary["overall"]["identification"]["observable"] == 1
+    assert summary["overall"]["identification"]["faulted_runs"] == 1
+    by_gap = summary["pairs"]["by_gap"]
+    assert list(by_gap) == ["at once", "after 10 s"]
+    assert by_gap["at once"] == {
+        "gap_s": 0.0,
+        "runs": 3,
+        "first_observable": 2,
+        "first_identified_within_1s": 1,
+        "second_observable": 2,
+        "second_identified_within_1s": 2,
+        "second_identified_within_1s_share": 1.0,
+        "second_detection_delay_s_median": pytest.approx(0.35),
+        "both_declared_at_end": 2,
+        "declarations_outside_pair": 1,
+        "lost": 1,
+    }
+    later = by_gap["after 10 s"]
+    assert (later["runs"], later["first_identified_within_1s"], later["first_observable"]) == (
+        2, 2, 2,
+    )  # fmt: skip
+    assert (later["second_identified_within_1s"], later["second_observable"]) == (1, 2)
+    assert later["second_detection_delay_s_median"] == pytest.approx(1.3)
+    assert (later["both_declared_at_end"], later["declarations_outside_pair"]) == (1, 1)
+    assert summary["pairs"]["acceptance"] == {"second_identified_within_1s": False}
+    at_once = matrix_summary(rows[:3])["real-air"]["pairs"]
+    assert at_once["acceptance"] == {"second_identified_within_1s": True}
+    text = matrix_markdown(matrix_summary(rows))
+    assert "**Pairs**" in text
+    assert "| at once | 3 | 1/2 | 2/2 | 100 % | 0.35 | 2 | 1 | 1 |" in text
+    assert "| after 10 s | 2 | 2/2 | 1/2 | 50 % | 1.3 | 1 | 1 | 0 |" in text
+    assert "at every gap: at once 100 % (2/2), after 10 s 50 % (1/2): **not met**." in text
+    # a campaign without pairs keeps its summary and tables as they were
+    alone = matrix_summary([single])
+    assert "pairs" not in alone["real-air"] and "Pairs" not in matrix_markdown(alone)

@@ -2,7 +2,7 @@
 
 Identification within 1 s of observability, false declarations per fault-free hour, and the IMM's
 attitude error against UKF-2's on the same flights, per filter model and air, with the acceptance
-criteria.
+criteria; for a campaign of pairs, how the IMM found each channel of a pair, per gap.
 """
 
 from __future__ import annotations
@@ -31,6 +31,11 @@ MATRIX_FAULT_FREE_HOURS = 1.0
 
 #: the IMM's attitude MSE at most this multiple of UKF-2's on the same fault-free flight
 MATRIX_ATTITUDE_RATIO = 1.2
+
+
+#: pairs: at least this share of the observable second faults identified within
+#: :data:`MATRIX_WITHIN_S`, at every gap
+PAIRS_SECOND_SHARE = 0.90
 
 
 def _float(text: str) -> float:
@@ -210,10 +215,87 @@ def _attitude(flights: Sequence[dict[str, object]]) -> dict[str, object]:
     return out
 
 
+def is_pair_row(row: Row) -> bool:
+    """Whether a row is a pair run's (two channels, the second failing at its own time)."""
+    return bool(row.get("second_fault"))
+
+
+def pair_gap_label(gap_s: float) -> str:
+    """``at once`` for a gap of 0, ``after 10 s`` otherwise."""
+    return "at once" if gap_s == 0.0 else f"after {gap_s:g} s"
+
+
+def _pair_gap_s(row: Row) -> float:
+    """The gap of a pair run (s) from its two fault times."""
+    return round(_float(row["second_t_s"]) - _float(row["fault_t_s"]), 3)
+
+
+def _within(delay_text: str) -> bool:
+    """Whether a detection delay cell is at most :data:`MATRIX_WITHIN_S`."""
+    delay = _float(delay_text)
+    return math.isfinite(delay) and delay <= MATRIX_WITHIN_S
+
+
+def declarations_outside_pair(row: Row) -> int:
+    """Declarations of channels outside a pair run's two, at or after its first fault."""
+    pair = set(row["fault"].split("+"))
+    fault_t = _float(row["fault_t_s"])
+    count = 0
+    for item in row.get("declarations", "").split():
+        mode, _, t_text = item.partition("@")
+        count += _float(t_text) >= fault_t and not set(mode.split("+")) <= pair
+    return count
+
+
+def _pair_group(rows: Sequence[Row]) -> dict[str, object]:
+    """The figures of the pair runs of one gap (see :func:`matrix_summary`)."""
+    first = [r for r in rows if r["observable_t_s"] != ""]
+    second = [r for r in rows if r["second_observable_t_s"] != ""]
+    within = [r for r in second if r["second_identified_within_1s"] == "true"]
+    delays = [
+        _float(r["second_detection_delay_s"]) for r in second if r["second_detection_delay_s"]
+    ]
+    share = len(within) / len(second) if second else math.nan
+    return {
+        "runs": len(rows),
+        "first_observable": len(first),
+        "first_identified_within_1s": sum(_within(r["detection_delay_s"]) for r in first),
+        "second_observable": len(second),
+        "second_identified_within_1s": len(within),
+        "second_identified_within_1s_share": _number(share),
+        "second_detection_delay_s_median": _number(_median(delays)),
+        "both_declared_at_end": sum(
+            set(r["fault"].split("+")) <= set(r.get("declared_at_end", "").split("+")) for r in rows
+        ),
+        "declarations_outside_pair": sum(declarations_outside_pair(r) for r in rows),
+        "lost": sum(r["status"] == "critical" for r in rows),
+    }
+
+
+def _pairs(rows: Sequence[Row]) -> dict[str, object]:
+    """The pair runs of a filter model, per gap (in increasing order), with their criterion."""
+    gaps = sorted({_pair_gap_s(r) for r in rows})
+    by_gap = {
+        pair_gap_label(gap): dict(
+            gap_s=gap, **_pair_group([r for r in rows if _pair_gap_s(r) == gap])
+        )
+        for gap in gaps
+    }
+    shares = [g["second_identified_within_1s_share"] for g in by_gap.values()]
+    return {
+        "by_gap": by_gap,
+        "acceptance": {
+            "second_identified_within_1s": all(
+                s is not None and s >= PAIRS_SECOND_SHARE for s in shares
+            )
+        },
+    }
+
+
 def _matrix_group(rows: Sequence[Row]) -> dict[str, object]:
     imm = [r for r in rows if r["variant"] == "imm"]
     return {
-        "identification": _identification(imm),
+        "identification": _identification([r for r in imm if not is_pair_row(r)]),
         "false_declarations": _false_declarations(imm),
         "attitude": _attitude(_attitude_flights(rows)),
     }
@@ -227,6 +309,12 @@ def matrix_summary(rows: Sequence[Row]) -> dict[str, object]:
     fault-free exposure (:func:`~immukf_sitl.experiments.metrics.false_declaration_rate`), and
     the attitude error of the IMM beside UKF-2 and UKF-3 on the fault-free flights. Rows of
     runs that failed to run are left out; critical runs count with what they flew.
+
+    When the rows hold pair runs, ``pairs`` gives per gap (all airs): the runs, each fault
+    identified within the bound (the declaration that added its channel, at most
+    :data:`MATRIX_WITHIN_S` after it became observable) over the observable ones, the second
+    delay's median, the runs that ended with both channels declared, the declarations of
+    other channels from the first fault on, and the runs lost (critical).
     """
     rows = [r for r in rows if r["status"] != "error"]
     out: dict[str, object] = {}
@@ -249,6 +337,9 @@ def matrix_summary(rows: Sequence[Row]) -> dict[str, object]:
             ],
             "acceptance": _acceptance(overall),
         }
+        pairs = [r for r in mine if r["variant"] == "imm" and is_pair_row(r)]
+        if pairs:
+            out[model]["pairs"] = _pairs(pairs)
     return out
 
 
