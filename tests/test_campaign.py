@@ -914,3 +914,42 @@ def test_the_matrix_summary_gives_pairs_per_gap_apart_from_the_single_faults() -
     # a campaign without pairs keeps its summary and tables as they were
     alone = matrix_summary([single])
     assert "pairs" not in alone["real-air"] and "Pairs" not in matrix_markdown(alone)
+
+
+def test_the_shipped_pairs_campaign_and_its_report_from_a_partial_runs_csv(
+    tmp_path: Path, capsys
+) -> None:
+    import shutil
+
+    from immukf_sitl.experiments import campaign_report
+    from immukf_sitl.experiments.campaign_run import write_rows
+
+    path = tmp_path / "fault_pairs.yaml"
+    shutil.copy(CAMPAIGNS / "fault_pairs.yaml", path)
+    campaign = load_campaign(path)
+    runs = campaign.runs()
+    assert len(runs) == 15 * 2 * 2 * 3 == len({r.run_id for r in runs})
+    assert (campaign.seed, campaign.replicates, campaign.fault_modes) == (37, 1, "untrusted")
+    assert campaign.pair_gaps_s == (0.0, 10.0) and campaign.report == "matrix"
+    assert all(r.pair_gap_s is not None and r.second_t_s < 80.0 for r in runs)
+    assert campaign.figure_run() is not None
+    at_once, later = (next(r for r in runs if r.pair_gap_s == g) for g in (0.0, 10.0))
+    rows = [
+        _row(run_id=spec.run_id, variant="imm", fault=spec.mode.name,
+             fault_t_s=f"{spec.fault_t_s:g}", second_fault=spec.second_fault,
+             second_t_s=f"{spec.second_t_s:g}", observable_t_s="30",
+             detection_delay_s="0.3", second_observable_t_s="40",
+             second_detection_delay_s="0.4", second_identified_within_1s="true",
+             declared_at_end=spec.mode.name, fault_free_s="20",
+             false_declarations_fault_free="0")
+        for spec in (at_once, later)
+    ]  # fmt: skip
+    write_rows(tmp_path / "runs.csv", rows)
+    assert campaign_report.main([str(path), str(tmp_path)]) == 0
+    assert capsys.readouterr().out.strip().endswith(f"2 of {len(runs)} runs")
+    report = (tmp_path / "report.md").read_text()
+    assert "the second channel of a pair at once, after 10 s" in report
+    assert "| at once | 1 | 1/1 | 1/1 | 100 % | 0.4 | 1 | 0 | 0 |" in report
+    assert "| after 10 s | 1 | 1/1 | 1/1 | 100 % | 0.4 | 1 | 0 | 0 |" in report
+    matrix = json.loads((tmp_path / "matrix.json").read_text())
+    assert matrix["real-air"]["pairs"]["acceptance"] == {"second_identified_within_1s": True}

@@ -40,10 +40,14 @@ def write_figure(campaign: Campaign, path: Path) -> str | None:
     t, probabilities = run.history.probability_series([m.name for m in single_fault_modes()])
     plot_summary(str(path), summary, t, probabilities, run.truth, run.history.track())
     detections = ", ".join(f"{e.mode.name} at {e.t_s:.2f} s" for e in summary.detections)
+    zeroed = f"the {spec.mode.name} channel(s) zeroed at {spec.fault_t_s:g} s"
+    if spec.second_fault is not None:  # a pair run: each channel at its own time
+        first = spec.mode.channels[0]
+        zeroed = f"{first} zeroed at {spec.fault_t_s:g} s and {spec.second_fault} at "
+        zeroed += f"{spec.second_t_s:g} s"
     return (
-        f"{spec.variant} with the {spec.mode.name} channel(s) zeroed at {spec.fault_t_s:g} s, "
-        f"replicate 0, {spec.loop} loop: declarations {detections or 'none'}; "
-        f"{monitor.reason or 'maintained flight'}"
+        f"{spec.variant} with {zeroed}, replicate 0, {spec.loop} loop: declarations "
+        f"{detections or 'none'}; {monitor.reason or 'maintained flight'}"
     )
 
 
