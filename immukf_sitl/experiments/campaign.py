@@ -79,7 +79,8 @@ and independent of ``--jobs``. A fault-free run has a drawn time too; nothing us
 holds single faults) is a *pair run*, flown once per ``pair_gaps_s`` entry: the first channel (in
 x y z p q r order) fails at the run's fault time, the second ``gap`` seconds later, each with its
 own fault and its own size, drawn in the range of its sensor from the fault kinds' key above
-plus the channel's bit (``1 << channel index``). Its ``run_id`` carries the gap after the time
+plus the channel's bit (``1 << channel index``). Time and sizes do not depend on the gap, so the
+gaps of a cell differ in nothing else. Its ``run_id`` carries the gap after the time
 (``t31.58+g10``); single-fault and fault-free runs are flown once, as before. The UKF variants
 fly a multi-channel set as one fault at one time, as before: their filters hold one mode.
 """
