@@ -37,6 +37,16 @@ from immukf_sitl.service.filter_models import FilterModel, filter_model
 from immukf_sitl.service.pipeline import PipelineConfig
 
 #: The columns of ``runs.csv``, in order (docs/results/paper/report.md defines each).
+#: the second fault of a pair run (empty on any other run)
+_SECOND_FAULT_COLUMNS = (
+    "second_fault",
+    "second_t_s",
+    "second_observable_t_s",
+    "second_detected_t_s",
+    "second_detection_delay_s",
+    "second_identified_within_1s",
+    "second_named_kind",
+)
 COLUMNS: tuple[str, ...] = (
     "index",
     "run_id",
@@ -72,13 +82,7 @@ COLUMNS: tuple[str, ...] = (
     "identified_within_1s",
     "named_kind",
     "named_size",
-    "second_fault",
-    "second_t_s",
-    "second_observable_t_s",
-    "second_detected_t_s",
-    "second_detection_delay_s",
-    "second_identified_within_1s",
-    "second_named_kind",
+    *_SECOND_FAULT_COLUMNS,
     "false_declarations",
     "fault_free_s",
     "false_declarations_fault_free",
@@ -88,16 +92,7 @@ COLUMNS: tuple[str, ...] = (
     "error",
 )
 #: the columns pair runs added: a ``runs.csv`` written before them still reads, with them empty
-PAIR_COLUMNS = (
-    "second_fault",
-    "second_t_s",
-    "second_observable_t_s",
-    "second_detected_t_s",
-    "second_detection_delay_s",
-    "second_identified_within_1s",
-    "second_named_kind",
-    "declared_at_end",
-)
+PAIR_COLUMNS = (*_SECOND_FAULT_COLUMNS, "declared_at_end")
 _COLUMNS_BEFORE_PAIRS = tuple(c for c in COLUMNS if c not in PAIR_COLUMNS)
 RUNS_CSV = "runs.csv"
 CAMPAIGN_JSON = "campaign.json"
