@@ -189,3 +189,22 @@ def test_the_process_model_gets_the_start_of_the_step_and_the_output_model_its_e
         calls.clear()
         est = imm.step(est, 1.5, np.zeros(0), None)
         assert calls == [("f", 1.25)] and est.t_s == 1.5
+
+
+def test_rescored_likelihood_is_the_gaussian_of_the_widened_covariance():
+    """``S + diag(extra)`` on the leading outputs, against scipy's multivariate normal."""
+    from scipy.stats import multivariate_normal
+
+    from immukf_sitl.estimation.imm import rescored_log_likelihood
+
+    rng = np.random.default_rng(41)
+    a = rng.normal(size=(3, 5, 5))
+    cov = a @ a.transpose(0, 2, 1) + 0.1 * np.eye(5)
+    nu = rng.normal(size=(3, 5))
+    extra = np.array([0.5, 0.0, 2.0])
+    scored, widened = rescored_log_likelihood(np.array([0.0, -np.inf, 1.0]), nu, cov, extra)
+    for b in (0, 2):
+        want = cov[b] + np.diag(np.concatenate([extra, [0.0, 0.0]]))
+        assert widened[b] == pytest.approx(want)
+        assert scored[b] == pytest.approx(multivariate_normal(np.zeros(5), want).logpdf(nu[b]))
+    assert scored[1] == -np.inf  # a filter reset this step stays unlikely

@@ -39,6 +39,7 @@ def _adapter(**changes) -> TurbulenceAdapter:
 def _fly(
     adapter: TurbulenceAdapter, q_true: np.ndarray, seconds: float, seed: int,
     dead: int | None = None, trusted: np.ndarray | None = None,
+    unmodelled_var: np.ndarray | None = None,
 ) -> TurbulenceEstimate:  # fmt: skip
     """Six scalar random walks, each filtered with the adapter's noise at its current scale."""
     rng = np.random.default_rng(seed)
@@ -51,6 +52,8 @@ def _fly(
         q = np.diagonal(adapter.process_at(est.scale).state_noise_cov)
         x = x + rng.normal(0.0, np.sqrt(q_true))
         z = x + rng.normal(0.0, np.sqrt(R), 6)
+        if unmodelled_var is not None:  # noise the filter's R does not hold
+            z = z + rng.normal(0.0, np.sqrt(unmodelled_var))
         if dead is not None:
             z[dead] = rng.normal(0.0, np.sqrt(R))  # zeroed: the healthy model cannot explain it
         p_pred = p + q
@@ -80,6 +83,18 @@ def test_a_dead_channel_moves_the_scale_by_one_rank_only() -> None:
     k_true = 0.4
     est = _fly(_adapter(), np.full(6, k_true**2 * Q_DESIGN), 150.0, seed=14, dead=2)
     assert est.scale == pytest.approx(k_true, rel=0.3)
+
+
+def test_unexplained_variance_is_the_noise_the_filter_does_not_model() -> None:
+    """A channel reading white noise beyond its R shows that variance, and only that one."""
+    unmodelled = np.array([0.0, 0.0, 3.0 * R, 0.0, 0.0, 0.0])
+    est = _fly(_adapter(), np.full(6, 0.25 * Q_DESIGN), 120.0, seed=16, unmodelled_var=unmodelled)
+    beyond = est.unexplained_var()
+    assert beyond[2] == pytest.approx(3.0 * R, rel=0.25)
+    assert np.all(beyond[[0, 1, 3, 4, 5]] < 0.3 * R)
+    assert np.all(TurbulenceEstimate().unexplained_var() == 0.0)  # nothing seen: nothing added
+    forgotten = est.forget_unexplained(np.arange(6) == 2).unexplained_var()
+    assert forgotten[2] == 0.0 and np.all(forgotten[[0, 1, 3, 4, 5]] == beyond[[0, 1, 3, 4, 5]])
 
 
 def test_untrusted_channels_say_nothing() -> None:

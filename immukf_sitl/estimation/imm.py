@@ -18,8 +18,36 @@ import numpy as np
 from immukf_sitl.estimation.angles import angle_mask
 from immukf_sitl.estimation.diagnostics import FilterDiagnostics
 from immukf_sitl.estimation.fault_modes import DeadOrAnyEvidence, ObservabilityGate
+from immukf_sitl.estimation.kernels import LOG_2PI
 from immukf_sitl.estimation.models import Measurement, ProcessModel
 from immukf_sitl.estimation.ukf import UnscentedKalmanFilter
+
+
+def rescored_log_likelihood(
+    log_likelihood: np.ndarray, innovation: np.ndarray, innovation_cov: np.ndarray,
+    extra_var: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """``log N(nu; 0, S + diag(extra_var))`` of each mode (eq. 25), and that covariance.
+
+    ``extra_var`` ``(m,)`` is added to the first ``m`` outputs. A mode the filter scored at
+    ``-inf`` (reset this step) stays there; if a covariance does not factor, the scores are
+    returned as they were.
+    """
+    cov = innovation_cov.copy()
+    m = extra_var.shape[0]
+    idx = np.arange(m)
+    cov[:, idx, idx] += extra_var
+    try:
+        factor = np.linalg.cholesky(cov)
+    except np.linalg.LinAlgError:
+        return log_likelihood, innovation_cov
+    white = np.linalg.solve(factor, innovation[:, :, None])[:, :, 0]
+    half_log_det = np.sum(np.log(np.diagonal(factor, axis1=1, axis2=2)), axis=1)
+    nz = innovation.shape[1]
+    scored = -0.5 * (np.sum(white * white, axis=1) + 2.0 * half_log_det + nz * LOG_2PI)  # eq. (25)
+    if not np.all(np.isfinite(scored[np.isfinite(log_likelihood)])):
+        return log_likelihood, innovation_cov
+    return np.where(np.isfinite(log_likelihood), scored, log_likelihood), cov
 
 
 def sticky_transition(n_modes: int, stay_probability: float) -> np.ndarray:
@@ -218,6 +246,7 @@ class ImmEstimator:
         measurement: Measurement | None,
         process: ProcessModel | None = None,
         previous_z: np.ndarray | None = None,
+        score_var: np.ndarray | None = None,
     ) -> ImmEstimate:
         """One IMM cycle from ``previous`` (time ``k``) to ``t_next_s`` (``k+1``), control ``u``.
 
@@ -225,8 +254,10 @@ class ImmEstimator:
         bank's estimate at ``k`` (from :meth:`initial_estimate` or the previous step): mixing
         (eqs. 6-8), the mode-matched filters (eqs. 9-25), the mode probabilities (eq. 26) and
         the combination (eqs. 27-28). ``previous_z`` (the measurement at ``k``, if known) lets
-        the evidence tell a reading that did not move. Returns the bank's estimate at
-        ``t_next_s``.
+        the evidence tell a reading that did not move. ``score_var`` (one variance per leading
+        output) is what the model's innovations show beyond their covariance: added to ``S``
+        where the modes are scored (eq. 25 and the evidence), not in the gain. Returns the
+        bank's estimate at ``t_next_s``.
         """
         kern = self.ukf.kernels
         r, nx = previous.mode_means.shape
@@ -245,11 +276,17 @@ class ImmEstimator:
         filtered = self.ukf.step(prior, t_next_s, u, measurement, process)  # eqs. (9)-(25)
 
         log_likelihood = filtered.log_likelihood
+        scored_cov = filtered.innovation_cov
+        if score_var is not None and filtered.updated and np.any(score_var > 0.0):
+            assert filtered.innovation is not None and scored_cov is not None
+            log_likelihood, scored_cov = rescored_log_likelihood(
+                log_likelihood, filtered.innovation, scored_cov, score_var
+            )
         if self.evidence is not None and filtered.updated:
             assert measurement is not None and filtered.innovation is not None
             log_likelihood, weights = self.evidence.score(
                 t_next_s, filtered.predicted_mean, filtered.innovation,
-                filtered.innovation_cov, measurement.z, u, log_likelihood, weights, previous_z,
+                scored_cov, measurement.z, u, log_likelihood, weights, previous_z,
                 widths,
             )  # fmt: skip
         log_mu = np.empty(r)

@@ -484,8 +484,10 @@ class RealAirModel(FilterModel):
     ``design_airspeed_mps`` 25 m/s) is the roughest MIL-F-8785C air the filter is meant to hold
     in; with ``adaptive_turbulence`` the wind and gust states' driving noise is scaled in flight
     to the air the innovations show, between ``turbulence_floor`` (0.1) and 1 times the design's,
-    from ``turbulence_averaging_s`` (10 s) averages. ``model_uncertainty`` (10 % aero, 5 % mass,
-    10 % inertia, 1-sigma relative) sizes the force and moment corrections, whose part that
+    from ``turbulence_averaging_s`` (10 s) averages. With ``score_unexplained`` and the untrusted
+    modes, each IMU channel's variance beyond ``S`` over the last minute is added to ``S`` where
+    the modes are scored, not in the gain. ``model_uncertainty`` (10 % aero, 5 % mass, 10 %
+    inertia, 1-sigma relative) sizes the force and moment corrections, whose part that
     changes with the flight condition is a random walk over ``correction_time_constant_s``
     (10 s). ``initial_wind_sigma_mps`` (10 m/s): nothing much is known of the wind at start-up.
 
@@ -523,6 +525,7 @@ class RealAirModel(FilterModel):
     adaptive_turbulence: bool = True
     turbulence_floor: float = 0.1
     turbulence_averaging_s: float = 10.0
+    score_unexplained: bool = True
     fault_signature: str = "zero"
     offset_walk_sigmas: float = 0.01
 
@@ -683,7 +686,10 @@ class _RealAirDynamics(ModelDynamics):
             bank = imm.step(previous, t_next_s, controls_pair, z, previous_z=previous_z)
             return self._idle_offsets(bank), air
         process = adapter.process_at(air.scale)
-        bank = imm.step(previous, t_next_s, controls_pair, z, process, previous_z)
+        score_var = None
+        if self.model.score_unexplained and self.model.fault_signature == "untrusted":
+            score_var = air.unexplained_var()  # the zero modes' signature test needs none
+        bank = imm.step(previous, t_next_s, controls_pair, z, process, previous_z, score_var)
         bank = self._idle_offsets(bank)
         if bank.updated and bank.innovations is not None and bank.innovation_var is not None:
             lead = bank.most_likely_mode

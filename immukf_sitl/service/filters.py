@@ -361,7 +361,12 @@ class AircraftEstimator(_Bank):
             updated=False,
             innovation_var=None,
         )
-        return dataclasses.replace(estimate, filter=self.dynamics.settled_offsets(moved))
+        air = estimate.turbulence
+        if air is not None:  # a channel that changed state: its spread was its failure's
+            changed = self.modes[0].healthy_mask != previous.modes[0].healthy_mask
+            air = air.forget_unexplained(changed)
+        filtered = self.dynamics.settled_offsets(moved)
+        return dataclasses.replace(estimate, filter=filtered, turbulence=air)
 
     def prior_probabilities(self) -> np.ndarray:
         """The filter model's start-up odds over the bank's modes."""

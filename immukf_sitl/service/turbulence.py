@@ -46,10 +46,11 @@ _CLIP_SIGMAS = 5.0
 
 @numba.njit(cache=True)
 def _fold(
-    excess: np.ndarray, predicted: np.ndarray, weight: np.ndarray, nu: np.ndarray,
-    s: np.ndarray, r: np.ndarray, trusted: np.ndarray, alpha: float,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:  # fmt: skip
-    """One step into the exponential averages of ``nu^2 - R``, ``S - R`` and the weight."""
+    excess: np.ndarray, predicted: np.ndarray, weight: np.ndarray, beyond: np.ndarray,
+    beyond_weight: np.ndarray, nu: np.ndarray, s: np.ndarray, r: np.ndarray,
+    trusted: np.ndarray, alpha: float, alpha_beyond: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:  # fmt: skip
+    """One step into the averages of ``nu^2 - R``, ``S - R``, ``nu^2 - S`` and their weights."""
     n = excess.shape[0]
     for i in range(n):
         if not (math.isfinite(nu[i]) and math.isfinite(s[i])):
@@ -57,13 +58,18 @@ def _fold(
     new_excess = np.empty(n)
     new_predicted = np.empty(n)
     new_weight = np.empty(n)
+    new_beyond = np.empty(n)
+    new_beyond_weight = np.empty(n)
     for i in range(n):
         g = alpha * trusted[i]
         nu2 = min(nu[i] * nu[i], _CLIP_SIGMAS * _CLIP_SIGMAS * s[i])
         new_excess[i] = excess[i] + g * (nu2 - r[i] - excess[i])
         new_predicted[i] = predicted[i] + g * (s[i] - r[i] - predicted[i])
         new_weight[i] = weight[i] + g * (1.0 - weight[i])
-    return new_excess, new_predicted, new_weight
+        h = alpha_beyond * trusted[i]
+        new_beyond[i] = beyond[i] + h * (nu2 - s[i] - beyond[i])
+        new_beyond_weight[i] = beyond_weight[i] + h * (1.0 - beyond_weight[i])
+    return new_excess, new_predicted, new_weight, new_beyond, new_beyond_weight
 
 
 @dataclass(frozen=True)
@@ -80,6 +86,10 @@ class TurbulenceEstimate:
         Average ``S - R`` per IMU channel (unit^2).
     weight : ndarray, shape (6,)
         Total weight of the averages per channel (1 once ``averaging_s`` of data is in).
+    beyond : ndarray, shape (6,)
+        Average ``nu^2 - S`` per IMU channel over ``unexplained_averaging_s`` (unit^2).
+    beyond_weight : ndarray, shape (6,)
+        Total weight of that average per channel.
     steps : int
         Steps since the last change of ``scale``.
     """
@@ -88,7 +98,33 @@ class TurbulenceEstimate:
     excess: np.ndarray = field(default_factory=lambda: np.zeros(6))
     predicted: np.ndarray = field(default_factory=lambda: np.zeros(6))
     weight: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    beyond: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    beyond_weight: np.ndarray = field(default_factory=lambda: np.zeros(6))
     steps: int = 0
+
+    def forget_unexplained(self, channels: np.ndarray) -> TurbulenceEstimate:
+        """The estimate with the average of ``nu^2 - S`` of ``channels`` (a mask) emptied.
+
+        A channel declared or released: its innovations since the failure measured the
+        failure, not the air, and the slot that trusts it again must not borrow their spread.
+        """
+        keep = ~np.asarray(channels, dtype=bool)
+        return dataclasses.replace(
+            self, beyond=self.beyond * keep, beyond_weight=self.beyond_weight * keep
+        )
+
+    def unexplained_var(self) -> np.ndarray:
+        """``(6,)``: the average ``nu^2`` beyond the average ``S``, per channel (unit^2).
+
+        What the innovations show that the filter's covariance does not (at least 0): the
+        averages over what has been seen, so from the first steps (0 on a channel not seen
+        yet). The scale ``k`` is one number for every channel; this is what each channel keeps
+        beyond it.
+        """
+        ready = self.beyond_weight > 0.0
+        out = np.zeros(6)
+        out[ready] = np.maximum(self.beyond[ready], 0.0) / self.beyond_weight[ready]
+        return out
 
 
 @dataclass(frozen=True, eq=False)
@@ -108,6 +144,9 @@ class TurbulenceAdapter:
         Filter step (s).
     averaging_s : float
         Time constant of the innovation averages (s).
+    unexplained_averaging_s : float
+        Time constant of the average of ``nu^2 - S`` (s): long against the second or so a
+        failing sensor takes to be declared, so that its innovations barely enter it.
     period_s : float
         Time between updates of the scale (s).
     floor : float
@@ -122,6 +161,7 @@ class TurbulenceAdapter:
     noise_var: np.ndarray
     dt_s: float
     averaging_s: float = 10.0
+    unexplained_averaging_s: float = 60.0
     period_s: float = 0.5
     floor: float = 0.1
     turbulence_share: Sequence[float] | None = None
@@ -130,6 +170,10 @@ class TurbulenceAdapter:
     def __post_init__(self) -> None:
         if not 0.0 < self.floor <= 1.0:
             raise ValueError(f"turbulence floor: expected 0 < floor <= 1, got {self.floor}")
+        if not 0.0 < self.dt_s <= min(self.period_s, self.unexplained_averaging_s):
+            raise ValueError(
+                "turbulence adapter: expected 0 < dt_s <= period_s and unexplained_averaging_s"
+            )
         if not 0.0 < self.dt_s <= self.period_s <= self.averaging_s:
             raise ValueError(
                 "turbulence adapter: expected 0 < dt_s <= period_s <= averaging_s, got "
@@ -147,6 +191,11 @@ class TurbulenceAdapter:
     def _alpha(self) -> float:
         """Weight of one step in the exponential averages."""
         return -math.expm1(-self.dt_s / self.averaging_s)
+
+    @cached_property
+    def _alpha_beyond(self) -> float:
+        """Weight of one step in the average of what the covariance does not explain."""
+        return -math.expm1(-self.dt_s / self.unexplained_averaging_s)
 
     @cached_property
     def _period_steps(self) -> int:
@@ -172,19 +221,20 @@ class TurbulenceAdapter:
             failed channel's ``S`` is ``R``: it says nothing of the air).
         """
         averages = _fold(
-            estimate.excess, estimate.predicted, estimate.weight,
-            np.asarray(innovation, dtype=float), np.asarray(innovation_var, dtype=float),
-            self.noise_var, np.asarray(trusted, dtype=float), self._alpha,
+            estimate.excess, estimate.predicted, estimate.weight, estimate.beyond,
+            estimate.beyond_weight, np.asarray(innovation, dtype=float),
+            np.asarray(innovation_var, dtype=float), self.noise_var,
+            np.asarray(trusted, dtype=float), self._alpha, self._alpha_beyond,
         )  # fmt: skip
         if averages is None:
             return estimate  # a filter reset this step: nothing to learn from
-        excess, predicted, weight = averages
+        excess, predicted, weight, beyond, beyond_weight = averages
         steps = estimate.steps + 1
         scale = estimate.scale
         if steps >= self._period_steps:
             steps = 0
             scale = self._rescaled(scale, excess, predicted, weight)
-        return TurbulenceEstimate(scale, excess, predicted, weight, steps)
+        return TurbulenceEstimate(scale, excess, predicted, weight, beyond, beyond_weight, steps)
 
     def _rescaled(
         self, scale: float, excess: np.ndarray, predicted: np.ndarray, weight: np.ndarray
