@@ -142,8 +142,8 @@ def test_the_zero_test_rejects_a_dead_channel_at_its_stated_rate():
     assert 0.01 - 4 * 0.00157 < rate < 0.01 + 4 * 0.00157
 
 
-def test_the_inconsistency_test_passes_a_consistent_channel_at_its_stated_rate():
-    """Residuals that are chi-square(1) pass as inconsistent 1 - signature_quantile of the time."""
+def test_the_offset_test_passes_a_held_consistent_offset_at_its_stated_rate():
+    """A learnt offset is one estimate held over the window: chi-square(1) flags 1 - q of them."""
     cfg = DetectorConfig(signature_window=20, signature_quantile=0.99)
     rng = np.random.default_rng(6)
     q = np.arange(6) == 4
@@ -151,10 +151,31 @@ def test_the_inconsistency_test_passes_a_consistent_channel_at_its_stated_rate()
     n = 4000
     for _ in range(n):
         window = SignatureWindow(cfg)
+        held = rng.normal(0.0, 1.0, (7, 6)) ** 2
+        for _ in range(cfg.signature_window):
+            window.push(None, held)
+        flagged += window.offset_beyond(5, q)
+    # binomial: 1 % of 4000 is 40 +- 6.3; four sigma either side
+    assert 0.01 - 4 * 0.00157 < flagged / n < 0.01 + 4 * 0.00157
+
+
+def test_the_offset_test_errs_towards_consistent_on_independent_residuals():
+    """Twenty independent chi-square(1) residuals: their mean passes far more often than 1 - q."""
+    cfg = DetectorConfig(signature_window=20, signature_quantile=0.99)
+    rng = np.random.default_rng(7)
+    q = np.arange(6) == 4
+    flagged = 0
+    for _ in range(4000):
+        window = SignatureWindow(cfg)
         for _ in range(cfg.signature_window):
             window.push(None, rng.normal(0.0, 1.0, (7, 6)) ** 2)
-        flagged += window.reads_inconsistent(5, q)
-    assert 0.01 - 4 * 0.00157 < flagged / n < 0.01 + 4 * 0.00157
+        flagged += window.offset_beyond(5, q)
+    # the mean of 20 exceeds chi2(1)'s 6.63 with probability chi2.sf(132.7, 20) ~ 1e-18
+    assert flagged == 0
+    window = SignatureWindow(cfg)
+    for _ in range(cfg.signature_window):
+        window.push(None, np.full((7, 6), 3.0**2))  # an offset held at 3 sigma: beyond 2.58
+    assert window.offset_beyond(5, q)
 
 
 def test_signature_test_settings_are_checked():

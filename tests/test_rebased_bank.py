@@ -200,3 +200,31 @@ def test_a_rebased_bank_carries_each_held_mode_over(name):
             if not mode.bits >> i & 1:
                 assert moved.mode_means[j, offset.index + i] == 0.0
                 assert moved.mode_covs[j, offset.index + i, offset.index + i] == OFFSET_PRIOR_VAR
+
+
+class _Scored(Exception):
+    """Raised by the recording bank below once it has seen what the modes are scored with."""
+
+
+def test_the_unexplained_spread_scores_the_modes_only_while_nothing_is_declared():
+    """The spread the innovations show was learnt on the fault-free base: a re-based bank's
+    base is another filter, so its modes are scored with ``S`` alone."""
+    from immukf_sitl.service.turbulence import TurbulenceEstimate
+
+    model = RealAirModel(fault_signature="untrusted")
+    bank = build_estimator(
+        "imm", load_aircraft_params(), NedOrigin(47.4, 8.5, 150.0), filter_model=model
+    )
+    air = TurbulenceEstimate(beyond=np.full(6, 1e-3), beyond_weight=np.ones(6))
+    seen = []
+
+    class Recorder:
+        def step(self, previous, t_next_s, u, z, process=None, previous_z=None, score_var=None):
+            seen.append(score_var)
+            raise _Scored
+
+    for estimator in (bank, bank.rebased(P)):
+        with pytest.raises(_Scored):
+            estimator.dynamics.step(Recorder(), None, air, 0.01, np.zeros((2, 4)), None)
+    np.testing.assert_allclose(seen[0], np.full(6, 1e-3))
+    assert seen[1] is None

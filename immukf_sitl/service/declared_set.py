@@ -235,7 +235,7 @@ class DeclaredSetDetector:
             failed = np.arange(N_IMU) == channel
             if self._window.reads_zero(failed) or (
                 (
-                    self._window.reads_inconsistent(j, failed)
+                    self._window.offset_beyond(j, failed)
                     or self._seen_failing(failure_weights, j, channel)
                 )
                 and self._sustained(j)

@@ -176,13 +176,20 @@ class SignatureWindow:
         energy = np.sum(np.square(np.array(self._readings)), axis=0)
         return bool(np.all(energy[failed] <= self._limit[n - 1]))
 
-    def reads_inconsistent(self, j: int, failed: np.ndarray) -> bool:
-        """Whether a channel of ``failed`` disagreed with mode ``j``'s own prediction of it."""
+    def offset_beyond(self, j: int, failed: np.ndarray) -> bool:
+        """Whether a channel of ``failed`` holds mode ``j``'s learnt offset beyond its uncertainty.
+
+        The residual of a channel a mode believes failed is its learnt offset, a state, so the
+        window's samples are one estimate seen twenty times, not twenty draws: their *mean*
+        ``e^2 / P_ee`` is held to the quantile of a chi-square with one degree of freedom
+        (10.8 at 0.999). That is exact for a constant estimate and errs towards "consistent"
+        for independent ones (whose sum the twenty-degree quantile would have judged).
+        """
         n = len(self._residuals)
         if n == 0:
             return True
-        energy = np.sum(np.array(self._residuals)[:, j, :], axis=0)
-        return bool(np.any(energy[failed] > self._limit[n - 1]))
+        mean = np.mean(np.array(self._residuals)[:, j, :], axis=0)
+        return bool(np.any(mean[failed] > self._limit[0]))
 
 
 class FaultDetector:

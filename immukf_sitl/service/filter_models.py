@@ -481,15 +481,16 @@ class RealAirModel(FilterModel):
     """The model of a real airframe in real air: 30 states, noise from documented quantities.
 
     The design air (``design_turbulence`` moderate, ``design_height_m`` 150 m,
-    ``design_airspeed_mps`` 25 m/s) is the roughest MIL-F-8785C air the filter is meant to hold
-    in; with ``adaptive_turbulence`` the wind and gust states' driving noise is scaled in flight
-    to the air the innovations show, between ``turbulence_floor`` (0.1) and 1 times the design's,
-    from ``turbulence_averaging_s`` (10 s) averages. With ``score_unexplained`` and the untrusted
-    modes, each IMU channel's variance beyond ``S`` over the last minute is added to ``S`` where
-    the modes are scored, not in the gain. ``model_uncertainty`` (10 % aero, 5 % mass, 10 %
-    inertia, 1-sigma relative) sizes the force and moment corrections, whose part that
-    changes with the flight condition is a random walk over ``correction_time_constant_s``
-    (10 s). ``initial_wind_sigma_mps`` (10 m/s): nothing much is known of the wind at start-up.
+    ``design_airspeed_mps`` 25 m/s) is the roughest MIL-F-8785C air the filter is meant to hold in;
+    with ``adaptive_turbulence`` the wind and gust states' driving noise is scaled in flight to the
+    air the innovations show, between ``turbulence_floor`` (0.1) and 1 times the design's, from
+    ``turbulence_averaging_s`` (10 s) averages. With ``score_unexplained`` and the untrusted modes,
+    while nothing is declared, each IMU channel's variance beyond ``S`` over the last minute is
+    added to ``S`` where the modes are scored, not in the gain (a re-based bank's base is another
+    filter, whose spread that average did not measure). ``model_uncertainty`` (10 % aero, 5 % mass,
+    10 % inertia, 1-sigma relative) sizes the force and moment corrections, whose part that changes
+    with the flight condition is a random walk over ``correction_time_constant_s`` (10 s).
+    ``initial_wind_sigma_mps`` (10 m/s): nothing much is known of the wind at start-up.
 
     ``sigma_point_alpha`` 0.01 draws van der Merwe's scaled points: Julier's sit at
     ``sqrt(n_a)`` sigma, 6 sigma for 33 augmented dimensions, which with the initial wind sigma
@@ -687,8 +688,12 @@ class _RealAirDynamics(ModelDynamics):
             return self._idle_offsets(bank), air
         process = adapter.process_at(air.scale)
         score_var = None
-        if self.model.score_unexplained and self.model.fault_signature == "untrusted":
-            score_var = air.unexplained_var()  # the zero modes' signature test needs none
+        if (
+            self.model.score_unexplained
+            and self.model.fault_signature == "untrusted"  # the zero test needs none
+            and self.modes[0].bits == 0
+        ):
+            score_var = air.unexplained_var()
         bank = imm.step(previous, t_next_s, controls_pair, z, process, previous_z, score_var)
         bank = self._idle_offsets(bank)
         if bank.updated and bank.innovations is not None and bank.innovation_var is not None:
