@@ -139,6 +139,10 @@ class FilterOptions:
     sensors_path: str | None = None
     servo_map_path: str | None = None
 
+    def __post_init__(self) -> None:
+        # a settling time left to the filter model is the filter model's
+        object.__setattr__(self, "detector", self.detector.resolved(self.filter_model.settle_s))
+
     #: (flag, record, attribute, help): the numeric options, each written once
     _NUMERIC = (
         ("--threshold", "detector", "threshold", "mode probability that declares a fault"),
@@ -155,7 +159,13 @@ class FilterOptions:
             "clear_dwell_s",
             "seconds below the clear threshold before clearing",
         ),
-        ("--settle", "detector", "settle_s", "seconds after alignment with no declarations"),
+        (
+            "--settle",
+            "detector",
+            "settle_s",
+            "seconds after alignment with no declarations (default: the filter model's, 3 for "
+            "paper, 10 for real-air: its correction time constant)",
+        ),
         (
             "--recovery-probability",
             "filter_model",
@@ -209,7 +219,7 @@ class FilterOptions:
                 dest=attribute,
                 type=float,
                 default=default,
-                help=f"{text} (default {default})",
+                help=text if default is None else f"{text} (default {default})",
             )
         # the chain's recovery default depends on --filter-model (real-air: 1e-7)
         parser.set_defaults(recovery_probability=None)

@@ -4,12 +4,15 @@ import numpy as np
 import pytest
 
 from immukf_sitl.estimation import FaultMode, single_fault_modes
+from immukf_sitl.options import FilterOptions
 from immukf_sitl.service.detection import (
     DetectionEvent,
     DetectorConfig,
     FaultDetector,
     SignatureWindow,
 )
+from immukf_sitl.service.filter_models import PaperModel, RealAirModel
+from immukf_sitl.service.pipeline import PipelineConfig
 
 MODES = single_fault_modes()
 
@@ -193,3 +196,16 @@ def test_an_event_round_trips_through_json_with_the_declared_set():
     plain = DetectionEvent("cleared", FaultMode.from_name("q"), 2.0, 0.3)
     assert "declared_after" not in plain.to_json()
     assert DetectionEvent.from_json(plain.to_json()) == plain
+
+
+def test_the_settling_time_is_the_filter_models_unless_given():
+    """The paper model settles for the alignment's transient (3 s); the real-air model for one
+    correction time constant, until the airframe's model error is learnt; --settle wins."""
+    real_air = RealAirModel(correction_time_constant_s=12.0)
+    assert PipelineConfig(filter_model=PaperModel()).detector.settle_s == 3.0
+    assert PipelineConfig(filter_model=real_air).detector.settle_s == 12.0
+    given = DetectorConfig(settle_s=1.5)
+    assert PipelineConfig(filter_model=real_air, detector=given).detector.settle_s == 1.5
+    assert FilterOptions(filter_model=real_air).detector.settle_s == 12.0
+    with pytest.raises(ValueError, match="settle_s"):
+        FaultDetector(MODES, DetectorConfig(), 0.0)

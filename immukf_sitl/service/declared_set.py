@@ -97,6 +97,7 @@ class DeclaredSetDetector:
     def __init__(
         self, config: DetectorConfig, start_s: float, declared: FaultMode | None = None
     ) -> None:
+        config.settling()  # resolved against the filter model
         self.config = config
         self.start_s = start_s
         self._bits = 0 if declared is None else declared.bits
@@ -226,7 +227,7 @@ class DeclaredSetDetector:
                 self._change(channel)
                 p = float(probabilities[j])
                 return [DetectionEvent("cleared", mode, t_s, p, declared_after=self._after())]
-        if t_s - self.start_s < cfg.settle_s:
+        if t_s - self.start_s < cfg.settling():
             return []
         for j, since in sorted(self._since.items(), key=lambda kv: -probabilities[kv[0]]):
             channel = j - 1

@@ -27,6 +27,7 @@ the estimator starts (its covariances are still converging from the initial alig
 
 from __future__ import annotations
 
+import dataclasses
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -45,7 +46,8 @@ class DetectorConfig:
     dwell_s: float = 0.2
     clear_threshold: float = 0.5
     clear_dwell_s: float = 5.0
-    settle_s: float = 3.0
+    #: None: the filter model's (:attr:`~immukf_sitl.service.filter_models.FilterModel.settle_s`)
+    settle_s: float | None = None
     alive_sigmas: float = 5.0
     alive_samples: int = 3
     signature_window: int = 20
@@ -57,13 +59,24 @@ class DetectorConfig:
                 "detection thresholds: expected 0 < clear_threshold <= threshold < 1, got "
                 f"{self.clear_threshold} and {self.threshold}"
             )
-        if min(self.dwell_s, self.clear_dwell_s, self.settle_s) < 0.0:
+        settle_s = 0.0 if self.settle_s is None else self.settle_s
+        if min(self.dwell_s, self.clear_dwell_s, settle_s) < 0.0:
             raise ValueError("detection dwell and settle times must be >= 0")
         if self.signature_window < 1 or not 0.0 < self.signature_quantile < 1.0:
             raise ValueError(
                 "signature test: expected signature_window >= 1 and 0 < signature_quantile < 1,"
                 f" got {self.signature_window} and {self.signature_quantile}"
             )
+
+    def settling(self) -> float:
+        """``settle_s``, which must have been resolved (:meth:`resolved`)."""
+        if self.settle_s is None:
+            raise ValueError("detector settle_s: resolve it against the filter model first")
+        return self.settle_s
+
+    def resolved(self, settle_s: float) -> DetectorConfig:
+        """The configuration with ``settle_s`` given where it was left to the filter model."""
+        return self if self.settle_s is not None else dataclasses.replace(self, settle_s=settle_s)
 
 
 #: what a named failure's size is, per kind, for the STATUSTEXT (``{unit}``: the channel's)
@@ -208,6 +221,7 @@ class FaultDetector:
     signature = "zero"
 
     def __init__(self, modes: Sequence[FaultMode], config: DetectorConfig, start_s: float):
+        config.settling()  # resolved against the filter model
         self.modes = tuple(modes)
         self.config = config
         self.start_s = start_s
@@ -271,7 +285,7 @@ class FaultDetector:
                     self._below_since = None
             else:
                 self._below_since = None
-        if t_s - self.start_s < cfg.settle_s:
+        if t_s - self.start_s < cfg.settling():
             return events
         if self.declared is not None and not alive:
             # a declared channel that has not read beyond its noise is still dead: no other

@@ -263,6 +263,11 @@ class FilterModel(ABC):
     fault_signature: str
     offset_walk_sigmas: float
 
+    @property
+    def settle_s(self) -> float:
+        """Seconds after alignment before anything is declared: the alignment's transient."""
+        return 3.0
+
     def transition(self, modes: Sequence[FaultMode]) -> np.ndarray:
         """``T[i, j] = P(M(k+1)=j | M(k)=i)`` (eq. 3) over ``modes``, the base mode first.
 
@@ -530,6 +535,15 @@ class RealAirModel(FilterModel):
     fault_signature: str = "zero"
     offset_walk_sigmas: float = 0.01
 
+    @property
+    def settle_s(self) -> float:
+        """One ``correction_time_constant_s`` after alignment before anything is declared.
+
+        Until the airframe's model error is learnt, a mode that leaves a channel out explains
+        that error as the channel's offset.
+        """
+        return self.correction_time_constant_s
+
     def __post_init__(self) -> None:
         self._check_signature()
         if self.design_turbulence not in TURBULENCE_LEVELS:
@@ -698,9 +712,10 @@ class _RealAirDynamics(ModelDynamics):
         bank = self._idle_offsets(bank)
         if bank.updated and bank.innovations is not None and bank.innovation_var is not None:
             lead = bank.most_likely_mode
+            base = (bank.innovations[0, :6], bank.innovation_var[0, :6], self.modes[0].healthy_mask)
             air = adapter.update(
                 air, bank.innovations[lead, :6], bank.innovation_var[lead, :6],
-                self.modes[lead].healthy_mask,
+                self.modes[lead].healthy_mask, base,
             )  # fmt: skip
         return bank, air
 

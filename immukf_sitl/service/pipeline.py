@@ -91,6 +91,10 @@ class PipelineConfig:
     #: an estimate faster than this (m/s) has diverged: re-align
     max_speed_mps: float = 150.0
 
+    def __post_init__(self) -> None:
+        # a settling time left to the filter model is the filter model's
+        object.__setattr__(self, "detector", self.detector.resolved(self.filter_model.settle_s))
+
 
 @dataclass
 class StreamCounters:
@@ -484,7 +488,7 @@ class EstimatorPipeline:
             )
         else:
             self.detector.start_s = t_s  # settle again; what was declared stays declared
-        self._restart_at_s = t_s + cfg.detector.settle_s
+        self._restart_at_s = t_s + cfg.detector.settling()
 
     def _bridge_gap(self, start_s: float, steps: int) -> None:
         """Predict ``steps`` filter steps after ``start_s`` with the last controls, no update.

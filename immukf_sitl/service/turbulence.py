@@ -48,12 +48,18 @@ _CLIP_SIGMAS = 5.0
 def _fold(
     excess: np.ndarray, predicted: np.ndarray, weight: np.ndarray, beyond: np.ndarray,
     beyond_weight: np.ndarray, nu: np.ndarray, s: np.ndarray, r: np.ndarray,
-    trusted: np.ndarray, alpha: float, alpha_beyond: float,
+    trusted: np.ndarray, nu_base: np.ndarray, s_base: np.ndarray, trusted_base: np.ndarray,
+    alpha: float, alpha_beyond: float,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:  # fmt: skip
-    """One step into the averages of ``nu^2 - R``, ``S - R``, ``nu^2 - S`` and their weights."""
+    """One step into the averages of ``nu^2 - R``, ``S - R``, ``nu^2 - S`` and their weights.
+
+    The first two are the leading mode's, the third the base mode's.
+    """
     n = excess.shape[0]
     for i in range(n):
         if not (math.isfinite(nu[i]) and math.isfinite(s[i])):
+            return None
+        if not (math.isfinite(nu_base[i]) and math.isfinite(s_base[i])):
             return None
     new_excess = np.empty(n)
     new_predicted = np.empty(n)
@@ -66,8 +72,9 @@ def _fold(
         new_excess[i] = excess[i] + g * (nu2 - r[i] - excess[i])
         new_predicted[i] = predicted[i] + g * (s[i] - r[i] - predicted[i])
         new_weight[i] = weight[i] + g * (1.0 - weight[i])
-        h = alpha_beyond * trusted[i]
-        new_beyond[i] = beyond[i] + h * (nu2 - s[i] - beyond[i])
+        h = alpha_beyond * trusted_base[i]
+        nu2_base = min(nu_base[i] * nu_base[i], _CLIP_SIGMAS * _CLIP_SIGMAS * s_base[i])
+        new_beyond[i] = beyond[i] + h * (nu2_base - s_base[i] - beyond[i])
         new_beyond_weight[i] = beyond_weight[i] + h * (1.0 - beyond_weight[i])
     return new_excess, new_predicted, new_weight, new_beyond, new_beyond_weight
 
@@ -207,6 +214,7 @@ class TurbulenceAdapter:
         innovation: np.ndarray,
         innovation_var: np.ndarray,
         trusted: np.ndarray,
+        base: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
     ) -> TurbulenceEstimate:
         """Fold one step's IMU innovations in; every ``period_s`` move the scale.
 
@@ -219,12 +227,22 @@ class TurbulenceAdapter:
         trusted : ndarray, shape (6,)
             1 (or True) on the channels that mode takes as healthy, 0 on its failed ones (a
             failed channel's ``S`` is ``R``: it says nothing of the air).
+        base : (ndarray, ndarray, ndarray), optional
+            The innovations, variances and trusted channels of the mode the spread beyond
+            ``S`` is learnt on: the base mode, the one it is added to when the modes are
+            scored (default: the leading mode's above). A fault mode that leads on the spread
+            the base does not explain would otherwise stop that spread being learnt.
         """
+        nu_base, s_base, trusted_base = (
+            (innovation, innovation_var, trusted) if base is None else base
+        )
         averages = _fold(
             estimate.excess, estimate.predicted, estimate.weight, estimate.beyond,
             estimate.beyond_weight, np.asarray(innovation, dtype=float),
             np.asarray(innovation_var, dtype=float), self.noise_var,
-            np.asarray(trusted, dtype=float), self._alpha, self._alpha_beyond,
+            np.asarray(trusted, dtype=float), np.asarray(nu_base, dtype=float),
+            np.asarray(s_base, dtype=float), np.asarray(trusted_base, dtype=float),
+            self._alpha, self._alpha_beyond,
         )  # fmt: skip
         if averages is None:
             return estimate  # a filter reset this step: nothing to learn from
