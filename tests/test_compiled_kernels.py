@@ -666,7 +666,7 @@ def _scoring_inputs(seed: int):
     limits = np.concatenate([rng.uniform(1e-5, 1e-3, 6), [3.0, 0.1]])
     weights = rng.dirichlet(np.ones(4), (r, 6))
     widths = rng.uniform(0.0, 1e-4, (r, 6))
-    spreads = np.concatenate([rng.uniform(1.0, 10.0, 6), [1e-6]])
+    spreads = np.concatenate([rng.uniform(1.0, 10.0, 6), [1e-6, 0.01]])
     return pairs, innovation, cov, z, previous, offset_reading, limits, weights, widths, spreads
 
 

@@ -202,3 +202,48 @@ def test_no_life_before_the_failure_is_named():
             k * 0.01, _probs(1 + Q, 0.99), _imu(rng, 0.3), SIGMAS, _innovations(rng)
         )
     assert events == [] and det._life[Q] == 0.0
+
+
+def _outliers(*pairs: tuple[int, int]) -> np.ndarray:
+    """The ``(slot, channel)`` samples the bank kept out of its update as outliers."""
+    out = np.zeros((7, 6), dtype=bool)
+    for j, i in pairs:
+        out[j, i] = True
+    return out
+
+
+def test_a_spike_train_is_declared_at_its_second_outlier_and_not_released_between_spikes():
+    """Slot q at 0.99 on a channel its offset explains between spikes: the first outlier its
+    gate kept out could be one tail sample, the second declares. Declared and named, an offset
+    of zero between spikes is no recovery; once the spikes stop it is, after the clear dwell."""
+    rng = np.random.default_rng(5)
+    cfg = DetectorConfig(dwell_s=0.1, settle_s=0.0, clear_dwell_s=1.0)
+    det = DeclaredSetDetector(cfg, 0.0)
+    events = []
+    for k in range(100):
+        spike = _outliers((5, Q)) if k in (30, 80) else _outliers()
+        nu = _innovations(rng)
+        events += det.update(k * 0.01, _probs(5, 0.99), _imu(rng), SIGMAS, nu, None, None, spike)
+    assert [(e.kind, e.mode.name, round(e.t_s, 2)) for e in events] == [("detected", "q", 0.8)]
+    det.named(Q, "spikes", 0.3, 0.8)
+    events = []
+    for k in range(100, 400):  # the base keeps a spike out every half second: still failed
+        spike = _outliers((0, Q)) if k % 50 == 0 else _outliers()
+        nu = _innovations(rng)
+        events += det.update(k * 0.01, _probs(0, 1.0), _imu(rng), SIGMAS, nu, None, None, spike)
+    assert events == []
+    for k in range(400, 600):  # no more spikes: the zero offset releases it after 1 s
+        events += det.update(k * 0.01, _probs(0, 1.0), _imu(rng), SIGMAS, _innovations(rng))
+    assert [(e.kind, e.mode.name) for e in events] == [("cleared", "q")]
+    assert 4.5 <= events[0].t_s <= 4.55  # the last spike at 3.50 s, and the clear dwell
+
+
+def test_one_outlier_of_a_leading_slot_does_not_declare_its_channel():
+    rng = np.random.default_rng(6)
+    det = DeclaredSetDetector(DetectorConfig(dwell_s=0.1, settle_s=0.0), 0.0)
+    events = []
+    for k in range(300):
+        spike = _outliers((5, Q)) if k == 50 else _outliers()
+        nu = _innovations(rng)
+        events += det.update(k * 0.01, _probs(5, 0.99), _imu(rng), SIGMAS, nu, None, None, spike)
+    assert events == []

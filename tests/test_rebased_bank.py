@@ -7,6 +7,7 @@ import math
 
 import numpy as np
 import pytest
+from scipy.optimize import brentq
 from scipy.stats import norm
 
 from immukf_sitl.estimation import (
@@ -22,6 +23,7 @@ from immukf_sitl.estimation.fault_modes import (
     FAILURE_PRIOR,
     FAILURE_WEIGHT_FLOOR,
     OFFSET_PRIOR_VAR,
+    OUTLIER_SHARE,
     STUCK_SIGMAS,
     reference_slots,
 )
@@ -132,18 +134,19 @@ def test_failure_weights_are_the_bayes_posterior_of_the_ways_to_fail():
     s = cov[slot, q, q]
     dead = norm.logpdf(z[q], 0.0, math.sqrt(r))  # seen: the prediction is far from zero
     stuck = norm.logpdf(z[q] - previous[q], 0.0, STUCK_SIGMAS * math.sqrt(r))
-    off = norm.logpdf(nu[slot, q], 0.0, math.sqrt(s))
+    factor = norm.logpdf(nu[slot, q], 0.0, math.sqrt(s))  # the UKF's, swapped for the mixture
     anything = norm.logpdf(nu[slot, q], 0.0, math.sqrt(s + imu.ranges[q] ** 2 / 3.0))
+    off = np.logaddexp(math.log1p(-OUTLIER_SHARE) + factor, math.log(OUTLIER_SHARE) + anything)
     joint = np.log(prior) + [dead, stuck, off, anything]
     predictive = np.logaddexp.reduce(joint)
-    assert got[slot] == pytest.approx(predictive - off, abs=1e-9)
+    assert got[slot] == pytest.approx(predictive - factor, abs=1e-9)
     posterior = np.maximum(np.exp(joint - predictive), FAILURE_WEIGHT_FLOOR)
     np.testing.assert_allclose(updated[slot, q], posterior / posterior.sum(), atol=1e-12)
     assert updated[slot, q, 1] > 0.98  # a reading that held still where it should have moved
     np.testing.assert_array_equal(updated[0], weights[0])  # the fault-free mode: untouched
 
 
-def test_settled_weights_cost_a_mode_nothing_where_a_fresh_mixture_costs_ln_2():
+def test_settled_weights_cost_a_mode_its_outlier_share_where_a_fresh_mixture_costs_ln_2():
     modes = single_fault_modes()
     evidence, imu = _evidence(modes)
     rng = np.random.default_rng(3)
@@ -160,7 +163,8 @@ def test_settled_weights_cost_a_mode_nothing_where_a_fresh_mixture_costs_ln_2():
         )
         costs.append(got[5])
     assert costs[0] == pytest.approx(math.log(1 / 4), abs=0.01)  # the prior's price, once
-    assert abs(costs[-1]) < 10 * FAILURE_WEIGHT_FLOOR  # then nothing
+    # then only the samples kept for outliers: ln(1 - share) a step, 0.01 nats
+    assert costs[-1] == pytest.approx(math.log1p(-OUTLIER_SHARE), abs=10 * FAILURE_WEIGHT_FLOOR)
     assert weights[5, 4, 2] > 0.999
     static = evidence(0.0, np.zeros((7, 6)), nu, cov, z, None, np.zeros(7))
     assert static[5] == pytest.approx(math.log(0.5), abs=1e-3)  # drawn anew: ln 2 a step
@@ -228,3 +232,33 @@ def test_the_unexplained_spread_scores_the_modes_only_while_nothing_is_declared(
             estimator.dynamics.step(Recorder(), None, air, 0.01, np.zeros((2, 4)), None)
     np.testing.assert_allclose(seen[0], np.full(6, 1e-3))
     assert seen[1] is None
+
+
+def test_the_outlier_gate_keeps_out_what_the_offset_way_calls_an_outlier():
+    """Against a direct computation: a sample of a channel read through its offset is kept out
+    (width ``V``) where the offset way's outlier part ``s N(nu; 0, S + V)`` beats its inlier part
+    ``(1 - s) N(nu; 0, S)``, about 5 sigmas of ``S`` for the gyro; only where the offset way
+    leads the weights, and only on the mode's failed channel."""
+    modes = single_fault_modes()
+    evidence, imu = _evidence(modes)
+    q, slot = 4, 5
+    weights = np.tile(np.array([0.01, 0.01, 0.01, 0.97]), (7, 6, 1))  # "anything" leads
+    assert evidence.outlier_gate(weights) is None
+    weights[slot, q] = [0.01, 0.01, 0.97, 0.01]
+    gate = evidence.outlier_gate(weights)
+    variance = np.tile(imu.sigmas**2 * 4.0, (7, 1))
+    s, wide = variance[slot, q], imu.ranges[q] ** 2 / 3.0
+
+    def outlier_odds(k: float) -> float:
+        nu = k * math.sqrt(s)
+        outlier = math.log(OUTLIER_SHARE) + norm.logpdf(nu, 0.0, math.sqrt(s + wide))
+        return outlier - (math.log1p(-OUTLIER_SHARE) + norm.logpdf(nu, 0.0, math.sqrt(s)))
+
+    for k in np.linspace(-8.0, 8.0, 161):
+        innovation = np.full((7, 6), 100.0) * np.sqrt(variance)  # far off everywhere else
+        innovation[slot, q] = k * math.sqrt(s)
+        got = gate(innovation, variance)
+        assert got[slot, q] == (wide if outlier_odds(k) > 0.0 else 0.0)
+        got[slot, q] = 0.0
+        assert not got.any()
+    assert 4.5 < brentq(outlier_odds, 0.0, 20.0) < 5.5

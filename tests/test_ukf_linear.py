@@ -71,3 +71,33 @@ def test_log_likelihood_is_the_gaussian_density_of_the_innovation():
     expected = -0.5 * (nu @ np.linalg.solve(S, nu) + np.log(np.linalg.det(2 * np.pi * S)))
     assert est.log_likelihood[0] == pytest.approx(expected, rel=1e-12)
     assert est.nis[0] == pytest.approx(nu @ np.linalg.solve(S, nu), rel=1e-12)
+
+
+@pytest.mark.parametrize("noise_form", ["augmented", "additive"])
+def test_a_gate_sees_the_kalman_innovation_and_what_it_widens_is_not_read(noise_form):
+    """A measurement's gate is handed the closed-form Kalman filter's innovation and the diagonal
+    of its ``S``; a width it gives the second output leaves the update that of the first alone."""
+    sys = constant_velocity()
+    ukf = UnscentedKalmanFilter(sys.process(), noise_form=noise_form)
+    x0 = np.array([0.0, 0.0, 1.0, 1.0])
+    P0 = np.eye(4)
+    z = np.array([0.7, -0.4])
+    seen = {}
+
+    def gate(innovation, variance):
+        seen["innovation"], seen["variance"] = innovation.copy(), variance.copy()
+        out = np.zeros_like(variance)
+        out[:, 1] = 1e12
+        return out
+
+    prior = ukf.initial_estimate(0.0, x0, P0)
+    est = ukf.step(prior, 0.1, np.zeros(0), Measurement(z, sys.measurement(), gate=gate))
+    Pp = sys.F @ P0 @ sys.F.T + sys.G @ sys.Q @ sys.G.T
+    S = sys.H @ Pp @ sys.H.T + sys.R
+    nu = z - sys.H @ sys.F @ x0
+    np.testing.assert_allclose(seen["innovation"][0], nu, rtol=1e-9)
+    np.testing.assert_allclose(seen["variance"][0], np.diag(S), rtol=1e-9)
+    h = sys.H[:1]
+    gain = Pp @ h.T / (h @ Pp @ h.T + sys.R[:1, :1])
+    np.testing.assert_allclose(est.mean[0], sys.F @ x0 + gain[:, 0] * nu[0], rtol=1e-9, atol=1e-9)
+    np.testing.assert_array_equal(est.gated, [[0.0, 1e12]])

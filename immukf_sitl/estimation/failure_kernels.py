@@ -91,6 +91,15 @@ def failure_terms(
 
 
 @numba.njit(cache=True)
+def _log_add_exp(a: float, b: float) -> float:
+    """``log(exp(a) + exp(b))``."""
+    top = max(a, b)
+    if top == -math.inf:
+        return -math.inf
+    return top + math.log(math.exp(a - top) + math.exp(b - top))
+
+
+@numba.njit(cache=True)
 def _log_sum_exp4(a: np.ndarray) -> float:
     """``log sum exp`` of four numbers."""
     top = max(max(a[0], a[1]), max(a[2], a[3]))
@@ -109,7 +118,9 @@ def failure_update(
     """The modes' log-likelihoods and weights after scoring the failed pairs by the ways to fail.
 
     Each pair's factor is the predictive mixture of dead, stuck, offset and anything at the
-    mode's weights; the weights become its posterior, floored.
+    mode's weights; the weights become its posterior, floored. The offset part is itself a
+    mixture: the healthy reading plus the offset, or now and then an outlier of it, which a
+    width of ``V`` on that sample (the outlier gate) kept out of the update.
 
     Parameters
     ----------
@@ -123,15 +134,16 @@ def failure_update(
         The modes' weights of dead, stuck, offset and anything, per channel.
     log_likelihood : ndarray, shape (r,)
         ``log Lambda_j`` (eq. 25) as the filters computed them.
-    spreads : ndarray, shape (7,)
-        ``V = range^2 / 3`` of the six channels, then the weights' floor.
+    spreads : ndarray, shape (8,)
+        ``V = range^2 / 3`` of the six channels, then the weights' floor and the share of
+        outliers among the samples of a channel read through its offset.
 
     Returns
     -------
     (ndarray, ndarray)
         The log-likelihoods ``(r,)`` and the updated weights ``(r, 6, 4)``.
     """
-    floor = spreads[6]
+    floor, share = spreads[6], spreads[7]
     out = log_likelihood.copy()
     updated = weights.copy()
     parts = np.empty(4)
@@ -143,8 +155,12 @@ def failure_update(
         s = innovation_cov[j, i, i]
         width = widths[j, i]
         log_factor = terms[f, 0]
-        log_offset = _log_normal(nu, max(s - width, _TINY))
-        log_anything = _log_normal(nu, s + spreads[i] - width)
+        narrow = max(s - width, _TINY)
+        log_anything = _log_normal(nu, narrow + spreads[i])
+        # read through the offset but for an outlier now and then (a spike)
+        log_offset = _log_add_exp(
+            math.log1p(-share) + _log_normal(nu, narrow), math.log(share) + log_anything
+        )
         parts[0], parts[1], parts[2], parts[3] = terms[f, 1], terms[f, 2], log_offset, log_anything
         # a part that cannot be seen says nothing of which way the channel failed
         told[0] = terms[f, 1] if terms[f, 3] > 0.5 else log_offset

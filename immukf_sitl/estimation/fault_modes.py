@@ -22,6 +22,7 @@ failed channel is its *signature* (:data:`FAULT_SIGNATURES`):
 from __future__ import annotations
 
 import itertools
+import math
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from functools import cached_property
@@ -29,7 +30,7 @@ from functools import cached_property
 import numpy as np
 
 from immukf_sitl.estimation.failure_kernels import failure_terms, failure_update
-from immukf_sitl.estimation.models import MeasurementFn
+from immukf_sitl.estimation.models import MeasurementFn, SampleGate
 
 IMU_CHANNELS: tuple[str, ...] = ("x", "y", "z", "p", "q", "r")
 CHANNEL_DESCRIPTIONS: dict[str, str] = {
@@ -174,6 +175,10 @@ FAILURE_PRIOR = np.full(len(FAILURE_WAYS), 1.0 / len(FAILURE_WAYS))
 FAILURE_WEIGHT_FLOOR = 1e-6
 #: a stuck reading repeats to within this many noise sigmas (a held register: exactly)
 STUCK_SIGMAS = 0.1
+#: prior share of a channel's samples, read through its learnt offset, that are outliers of it
+#: (a spike): the offset way is ``(1 - s) N(nu; 0, S) + s N(nu; 0, S + V)``
+#: (docs/design/detection-and-tuning.md derives it)
+OUTLIER_SHARE = 0.01
 
 
 @dataclass(frozen=True)
@@ -514,6 +519,10 @@ class ObservabilityGate:
         """No widths: a zero mode's channel gives its state no feedback by its output."""
         return None
 
+    def outlier_gate(self, weights: np.ndarray | None) -> None:
+        """No gate: a zero mode's channel is never read."""
+        return None
+
     def score(
         self,
         t_s: float,
@@ -603,7 +612,7 @@ class DeadOrAnyEvidence:
     def _spreads(self) -> np.ndarray:
         """``V = range^2 / 3`` of the six channels and the weights' floor."""
         assert self.offset is not None
-        return np.concatenate([self.offset.ranges**2 / 3.0, [FAILURE_WEIGHT_FLOOR]])
+        return np.concatenate([self.offset.ranges**2 / 3.0, [FAILURE_WEIGHT_FLOOR, OUTLIER_SHARE]])
 
     def __call__(
         self,
@@ -686,6 +695,46 @@ class DeadOrAnyEvidence:
         sharp = weights[:, :, 0] + weights[:, :, 1] - 2.0 * FAILURE_WEIGHT_FLOOR
         doubt = np.maximum(sharp, 0.0)
         return doubt * wide[None, :] * self.offset.failed.T
+
+    def outlier_gate(self, weights: np.ndarray | None) -> SampleGate | None:
+        """What each mode will not read of this sample: an outlier of a channel's learnt offset.
+
+        A channel its mode believes offset (that way leads its weights) reads its healthy value
+        plus the offset, except for an outlier now and then (:data:`OUTLIER_SHARE`). Once the
+        prediction is known, a sample whose outlier part is the likelier of the two,
+        ``s N(nu; 0, S + V) > (1 - s) N(nu; 0, S)`` (about 5 sigmas of ``S`` for the default
+        IMU), is given the width ``V`` in this step's update: a spike then moves neither the
+        offset nor the state, where read through the offset it taught the offset the spike and
+        the healthy samples after it looked like a dead channel. A channel that has really
+        moved is still followed: each sample beyond the gate moves the weights ``1 / s``
+        towards "anything", which ends the gate within three or four samples.
+
+        Returns ``(innovation, variance) -> widths``, both ``(r, nz)`` and the widths ``(r, nz)``
+        (zeros past the IMU channels), or None when no mode reads a channel through an offset.
+        """
+        pairs = self._pairs
+        if weights is None or self.offset is None or pairs is None:
+            return None
+        modes, channels = pairs[:, 0], pairs[:, 1]
+        ways = weights[modes, channels]  # (k, 4)
+        offset_leads = ways[:, 2] >= ways.max(axis=1)
+        if not offset_leads.any():
+            return None
+        modes, channels = modes[offset_leads], channels[offset_leads]
+        wide = (self.offset.ranges**2 / 3.0)[channels]
+        # the outlier part wins where nu^2 / S > 2 ln((1 - s) / s) + ln((S + V) / S), nearly
+        log_odds = math.log(OUTLIER_SHARE / (1.0 - OUTLIER_SHARE))
+
+        def gate(innovation: np.ndarray, variance: np.ndarray) -> np.ndarray:
+            nu = innovation[modes, channels]
+            s = variance[modes, channels]
+            inlier = -0.5 * (nu * nu / s + np.log(s))
+            outlier = log_odds - 0.5 * (nu * nu / (s + wide) + np.log(s + wide))
+            out = np.zeros_like(variance)
+            out[modes, channels] = np.where(outlier > inlier, wide, 0.0)
+            return out
+
+        return gate
 
     def score(
         self,

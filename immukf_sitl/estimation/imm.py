@@ -17,7 +17,7 @@ import numpy as np
 
 from immukf_sitl.estimation.angles import angle_mask
 from immukf_sitl.estimation.diagnostics import FilterDiagnostics
-from immukf_sitl.estimation.fault_modes import DeadOrAnyEvidence, ObservabilityGate
+from immukf_sitl.estimation.fault_modes import N_IMU, DeadOrAnyEvidence, ObservabilityGate
 from immukf_sitl.estimation.kernels import LOG_2PI
 from immukf_sitl.estimation.models import Measurement, ProcessModel
 from immukf_sitl.estimation.ukf import UnscentedKalmanFilter
@@ -95,6 +95,9 @@ class ImmEstimate:
     predicted_means : ndarray or None, shape (r, nx)
         Each mode's ``x(k+1|k)``, the state its innovations were taken against; None before
         the first step.
+    outliers : ndarray of bool or None, shape (r, 6)
+        The IMU samples each mode kept out of its update as outliers of a failed channel's
+        learnt offset (:meth:`DeadOrAnyEvidence.outlier_gate`); None without a gate.
     """
 
     t_s: float
@@ -111,6 +114,7 @@ class ImmEstimate:
     innovation_var: np.ndarray | None = None
     failure_weights: np.ndarray | None = None
     predicted_means: np.ndarray | None = None
+    outliers: np.ndarray | None = None
 
     @property
     def most_likely_mode(self) -> int:
@@ -271,7 +275,8 @@ class ImmEstimator:
                 if measurement.extra_var is not None:
                     extra += measurement.extra_var
                 extra[:, : widths.shape[1]] += widths
-                measurement = Measurement(measurement.z, measurement.model, extra)
+                gate = self.evidence.outlier_gate(weights)
+                measurement = Measurement(measurement.z, measurement.model, extra, gate)
         prior = self.ukf.initial_estimate(previous.t_s, mixed_mean, mixed_cov)
         filtered = self.ukf.step(prior, t_next_s, u, measurement, process)  # eqs. (9)-(25)
 
@@ -284,6 +289,8 @@ class ImmEstimator:
             )
         if self.evidence is not None and filtered.updated:
             assert measurement is not None and filtered.innovation is not None
+            if widths is not None and filtered.gated is not None:
+                widths = widths + filtered.gated[:, : widths.shape[1]]  # what the update read
             log_likelihood, weights = self.evidence.score(
                 t_next_s, filtered.predicted_mean, filtered.innovation,
                 scored_cov, measurement.z, u, log_likelihood, weights, previous_z,
@@ -314,4 +321,5 @@ class ImmEstimator:
             else np.diagonal(filtered.innovation_cov, axis1=1, axis2=2).copy(),
             weights,
             filtered.predicted_mean,
+            None if filtered.gated is None else filtered.gated[:, :N_IMU] > 0.0,
         )

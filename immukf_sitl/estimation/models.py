@@ -22,6 +22,9 @@ ProcessFn = Callable[[float, np.ndarray, np.ndarray, "np.ndarray | None"], np.nd
 #: ``g(t_s, x, u, w) -> z`` (eq. 2) at ``t_s``, the time of the measurement; ``w`` is ``None`` in
 #: the additive-noise form.
 MeasurementFn = Callable[[float, np.ndarray, np.ndarray, "np.ndarray | None"], np.ndarray]
+#: ``gate(innovation, variance) -> extra``, each ``(batch, nz)``: the variance each filter adds
+#: to each output at this sample, once its prediction is known (a sample a filter will not read)
+SampleGate = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
 
 def psd_sqrt(matrix: np.ndarray) -> np.ndarray:
@@ -182,6 +185,8 @@ class Measurement:
     #: ``(batch, nz)``: variance each filter adds to each channel at this step only (e.g. a
     #: fault mode's width on a channel it believes dead or stuck); None: nothing
     extra_var: np.ndarray | None = None
+    #: what each filter will not read of this sample, given its innovation (:data:`SampleGate`)
+    gate: SampleGate | None = None
 
     def __post_init__(self) -> None:
         z = np.asarray(self.z, dtype=float)

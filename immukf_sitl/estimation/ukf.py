@@ -121,6 +121,9 @@ class UkfEstimate:
         Normalised innovation squared ``z~' P_zz^-1 z~``, zero without update.
     updated : bool
         Whether a measurement was used.
+    gated : ndarray or None, shape (B, nz)
+        The variance the measurement's gate added to each output at this sample (None: no
+        gate).
     """
 
     t_s: float
@@ -133,6 +136,7 @@ class UkfEstimate:
     log_likelihood: np.ndarray
     nis: np.ndarray
     updated: bool
+    gated: np.ndarray | None = None
 
 
 class UnscentedKalmanFilter:
@@ -368,6 +372,12 @@ class UnscentedKalmanFilter:
             z_points = model.g(t_next_s, x_points, u, None)  # eq. (15)
         z_points = np.ascontiguousarray(z_points, dtype=float)
         nz = model.nz
+        gated = None
+        if measurement.gate is not None:
+            gated = self._gated(measurement, z_points, weights, added_r)
+            added_r = added_r.copy()
+            idx = np.arange(nz)
+            added_r[:, idx, idx] += gated
         out = (  # Updated
             np.empty((batch, nz, nz)),  # P_zz
             np.empty((batch, nz, nx)),  # P_zx
@@ -405,8 +415,26 @@ class UnscentedKalmanFilter:
             log_likelihood[bad] = -np.inf
         return UkfEstimate(
             t_next_s, new_mean, new_cov, pred_mean, pred_cov, innovation, z_cov, log_likelihood,
-            nis, True,
+            nis, True, gated,
         )  # fmt: skip
+
+    @staticmethod
+    def _gated(
+        measurement: Measurement, z_points: np.ndarray, weights: SigmaWeights, added_r: np.ndarray
+    ) -> np.ndarray:
+        """What the measurement's gate adds to each filter's output variances at this sample.
+
+        The gate sees each filter's innovation (eq. 21) and its variance, the diagonal of
+        ``P_zz`` (eq. 20), before anything it adds; angle outputs are not wrapped, so a gate reads
+        only the others.
+        """
+        assert measurement.gate is not None
+        predicted = z_points @ weights.mean_weights  # (nz, B), eq. (17)
+        spread = z_points - predicted[:, :, None]
+        variance = (spread * spread) @ weights.cov_weights  # diagonal of eq. (20) ...
+        variance = variance.T + np.diagonal(added_r, axis1=1, axis2=2)  # ... with R
+        innovation = measurement.z[None, :] - predicted.T
+        return np.asarray(measurement.gate(innovation, variance), dtype=float)
 
     def _output_constants_of(
         self, model: MeasurementModel, batch: int

@@ -22,19 +22,24 @@ channel's failure: the mode ``D + c`` is always in the bank.
   more bias state, as good as the base, so nothing pulls its probability back; one gust the
   base's Gaussian tail prices at 5 sigma puts it near even odds, and small evidence then
   carries it over the threshold. A failing sensor keeps disagreeing with the base sample
-  after sample.
+  after sample. A spiking one disagrees a sample at a time: the slot keeps each spike out of
+  its update as an outlier of the offset it learnt
+  (:meth:`~immukf_sitl.estimation.fault_modes.DeadOrAnyEvidence.outlier_gate`), and a
+  *second* outlier while it holds the threshold confirms the failure as the sustained test's
+  "without its largest sample" does.
 - **Release** channel ``c`` in ``D`` when, for ``clear_dwell_s``, slot ``D - c`` (the
   recovery) stays above ``1 - clear_threshold`` or the offset the base learnt for the channel
   stays within its uncertainty of zero while known to ``alive_sigmas`` noise sigmas (a channel
-  read as healthy plus an offset of zero is a healthy one, which the probabilities alone tell
-  from the failed one only by the offset's uncertainty), *and* the channel has shown life
-  relative to the way it was named to fail. A failure defined by what the channel reads needs
-  at least ``alive_samples`` readings more than ``alive_sigmas`` noise sigmas away from that
-  (a zero: from zero; stuck: from the held value): a sensor stuck near the true value agrees
-  with the other sensors for as long as the aircraft holds still, which is not life. A failure
-  defined against the truth (bias, drift, gain, noise, spikes) shows its recovery in the
-  probabilities and the offset above. Not named yet, nothing shows life. The count decays with
-  time constant ``clear_dwell_s``: life shown long ago says little of the sensor now.
+  read as healthy plus an offset of zero, and no outlier of it, is a healthy one, which the
+  probabilities alone tell from the failed one only by the offset's uncertainty), *and* the
+  channel has shown life relative to the way it was named to fail. A failure defined by what
+  the channel reads needs at least ``alive_samples`` readings more than ``alive_sigmas`` noise
+  sigmas away from that (a zero: from zero; stuck: from the held value): a sensor stuck near
+  the true value agrees with the other sensors for as long as the aircraft holds still, which
+  is not life. A failure defined against the truth (bias, drift, gain, noise, spikes) shows
+  its recovery in the probabilities and the offset above. Not named yet, nothing shows life.
+  The count decays with time constant ``clear_dwell_s``: life shown long ago says little of
+  the sensor now.
 - **Cannot isolate**: when slot 0 stays below ``1 - threshold`` for ``dwell_s`` while no other
   slot reaches ``threshold`` (the evidence is split between channels), an ``unisolated`` event
   names the channels in doubt, once until a declaration or until slot 0 recovers.
@@ -53,6 +58,10 @@ from scipy.stats import chi2
 
 from immukf_sitl.estimation.fault_modes import IMU_CHANNELS, N_IMU, FaultMode, bank_modes
 from immukf_sitl.service.detection import DetectionEvent, DetectorConfig, SignatureWindow
+
+#: outliers of a channel's learnt offset that declare it while its slot holds the threshold:
+#: the first may be one tail sample, a second confirms (the sustained test's largest sample)
+_SPIKES_TO_DECLARE = 2
 
 
 @dataclass(frozen=True)
@@ -103,6 +112,7 @@ class DeclaredSetDetector:
         self._bits = 0 if declared is None else declared.bits
         self.modes = bank_modes(self.declared)
         self._since: dict[int, float] = {}  # slot -> when it crossed its level
+        self._outliers: dict[int, int] = {}  # slot -> outliers of its channel since then
         self._base_low_since: float | None = None
         self._unisolated_said = False
         self._window = SignatureWindow(config)
@@ -133,6 +143,7 @@ class DeclaredSetDetector:
         self._bits ^= 1 << channel
         self.modes = bank_modes(self.declared)
         self._since.clear()
+        self._outliers.clear()
         self._base_low_since = None
         self._unisolated_said = False
         self._window.forget_residuals()
@@ -183,6 +194,7 @@ class DeclaredSetDetector:
         innovations: tuple[np.ndarray, np.ndarray] | None = None,
         failure_weights: np.ndarray | None = None,
         log_likelihoods: np.ndarray | None = None,
+        outliers: np.ndarray | None = None,
     ) -> list[DetectionEvent]:
         """Feed the bank's probabilities at ``t_s`` (slot order of :attr:`modes`).
 
@@ -190,7 +202,9 @@ class DeclaredSetDetector:
         of its own prediction of each channel and their variances, ``(7, 6)`` each) feed the
         inconsistency test and the life test; ``failure_weights`` ``(7, 6, 3)`` (how each slot
         believes each channel failed: dead, stuck, offset) the stuck test; ``log_likelihoods``
-        ``(7,)`` (this step's, eq. 25; None on a step without an update) the sustained test.
+        ``(7,)`` (this step's, eq. 25; None on a step without an update) the sustained test;
+        ``outliers`` ``(7, 6)`` (the samples each slot kept out of its update as outliers of a
+        channel's learnt offset) the spike test.
         Returns the events of this sample: at most one declaration or release, after which
         :attr:`modes` is the re-based bank's.
         """
@@ -205,6 +219,9 @@ class DeclaredSetDetector:
             self._evidence.append(ratio - ratio[0])
         if imu is not None and imu_sigmas is not None and innovations is not None:
             self._update_life(t_s, np.asarray(imu, dtype=float), imu_sigmas, innovations)
+        if outliers is not None:  # an offset of zero between spikes is not a recovery
+            for channel in np.flatnonzero(outliers[0]).tolist():
+                self._zero_offset_since.pop(channel, None)
         self._last_t_s = t_s
         for j in range(1, N_IMU + 1):
             channel = j - 1
@@ -212,8 +229,11 @@ class DeclaredSetDetector:
             level = 1.0 - cfg.clear_threshold if release else cfg.threshold
             if probabilities[j] >= level:
                 self._since.setdefault(j, t_s)
+                if outliers is not None and outliers[j, channel]:
+                    self._outliers[j] = self._outliers.get(j, 0) + 1
             else:
                 self._since.pop(j, None)
+                self._outliers.pop(j, None)
         for channel in range(N_IMU):
             if not self._bits >> channel & 1:
                 continue
@@ -234,12 +254,16 @@ class DeclaredSetDetector:
             if self._bits >> channel & 1 or t_s - since < cfg.dwell_s:
                 continue
             failed = np.arange(N_IMU) == channel
-            if self._window.reads_zero(failed) or (
-                (
-                    self._window.offset_beyond(j, failed)
-                    or self._seen_failing(failure_weights, j, channel)
+            if (
+                self._window.reads_zero(failed)
+                or (
+                    (
+                        self._window.offset_beyond(j, failed)
+                        or self._seen_failing(failure_weights, j, channel)
+                    )
+                    and self._sustained(j)
                 )
-                and self._sustained(j)
+                or self._outliers.get(j, 0) >= _SPIKES_TO_DECLARE
             ):
                 mode = FaultMode(1 << channel)
                 self._change(channel)

@@ -530,7 +530,7 @@ class EstimatorPipeline:
         bank = est.filter
         events = self.detector.update(
             t_s, est.mode_probabilities, imu, sigmas, innovations, bank.failure_weights,
-            bank.log_likelihoods if bank.updated else None,
+            bank.log_likelihoods if bank.updated else None, bank.outliers,
         )  # fmt: skip
         names = []
         if self._namer.pending:  # the naming residuals only while a declaration waits for them
