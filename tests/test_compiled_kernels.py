@@ -7,9 +7,12 @@ textbook formula written with numpy arrays in this file (LAPACK Cholesky, explic
 inverses). Whole filters then run compiled and interpreted side by side, safeguards included.
 """
 
+import math
+
 import numba
 import numpy as np
 import pytest
+from scipy.stats import norm
 from toy_systems import (
     constant_velocity,
     identity_output,
@@ -31,7 +34,12 @@ from immukf_sitl.estimation import (
 )
 from immukf_sitl.estimation import kernels as compiled_kernels
 from immukf_sitl.estimation.angles import wrap_angle
-from immukf_sitl.estimation.failure_kernels import failure_terms, failure_update
+from immukf_sitl.estimation.failure_kernels import (
+    failure_terms,
+    failure_update,
+    offset_leads,
+    outlier_widths,
+)
 from immukf_sitl.estimation.fault_modes import FaultMode, bank_modes, failed_channels
 from immukf_sitl.estimation.ukf import _process_column_source, load_kernels
 
@@ -683,3 +691,39 @@ def test_failure_scoring_compiled_equals_interpreted(seed):
     for a, b in zip(got, want, strict=True):
         np.testing.assert_allclose(a, b, rtol=SAME, atol=1e-15)
     np.testing.assert_allclose(got[1].sum(axis=2), 1.0, rtol=1e-12)  # weights stay a simplex
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_outlier_gate_kernels_compiled_equal_interpreted_and_numpy(seed):
+    """The gate's kernels against their interpreted selves and a numpy computation: which
+    pairs' offset way leads, the pairs' innovation moments (eqs. 17, 20, 21), the widths."""
+    pairs, _, _, z, _, _, _, weights, _, spreads = _scoring_inputs(seed)
+    leads = offset_leads(pairs, weights)
+    np.testing.assert_array_equal(leads, offset_leads.py_func(pairs, weights))
+    ways = weights[pairs[:, 0], pairs[:, 1]]
+    np.testing.assert_array_equal(leads, ways[:, 2] >= ways.max(axis=1))
+    rng = np.random.default_rng(seed)
+    r, nz, n_points = len(weights), z.size, 13
+    z_points = rng.normal(0.0, 1.0, (nz, r, n_points))
+    wm = rng.dirichlet(np.ones(n_points))
+    wc = rng.uniform(0.0, 0.2, n_points)
+    added_r = np.tile(np.diag(rng.uniform(0.1, 1.0, nz)), (r, 1, 1))
+    filters, outputs = pairs[:, 0].copy(), pairs[:, 1].copy()
+    got = np.empty((2, len(pairs)))
+    want = np.empty((2, len(pairs)))
+    compiled_kernels.pair_moments(z_points, filters, outputs, wm, wc, added_r, z, got[0], got[1])
+    compiled_kernels.pair_moments.py_func(z_points, filters, outputs, wm, wc, added_r, z, *want)
+    np.testing.assert_allclose(got, want, rtol=SAME, atol=0.0)
+    points = z_points[outputs, filters]
+    predicted = points @ wm
+    np.testing.assert_allclose(got[0], z[outputs] - predicted, rtol=1e-12)
+    spread = ((points - predicted[:, None]) ** 2) @ wc + added_r[filters, outputs, outputs]
+    np.testing.assert_allclose(got[1], spread, rtol=1e-12)
+    wide = spreads[outputs] * 1e-3
+    widths = outlier_widths(got[0], got[1], wide, math.log(0.01 / 0.99))
+    np.testing.assert_array_equal(
+        widths, outlier_widths.py_func(got[0], got[1], wide, math.log(0.01 / 0.99))
+    )
+    inlier = norm.logpdf(got[0], 0.0, np.sqrt(got[1]))
+    outlier = math.log(0.01 / 0.99) + norm.logpdf(got[0], 0.0, np.sqrt(got[1] + wide))
+    np.testing.assert_array_equal(widths, np.where(outlier > inlier, wide, 0.0))

@@ -7,6 +7,7 @@ from toy_systems import constant_velocity, kalman_filter
 from immukf_sitl.estimation import (
     JulierSigmaPoints,
     Measurement,
+    SampleGate,
     ScaledSigmaPoints,
     UnscentedKalmanFilter,
 )
@@ -84,19 +85,18 @@ def test_a_gate_sees_the_kalman_innovation_and_what_it_widens_is_not_read(noise_
     z = np.array([0.7, -0.4])
     seen = {}
 
-    def gate(innovation, variance):
+    def widths(innovation, variance):
         seen["innovation"], seen["variance"] = innovation.copy(), variance.copy()
-        out = np.zeros_like(variance)
-        out[:, 1] = 1e12
-        return out
+        return np.array([0.0, 1e12])
 
+    gate = SampleGate(np.array([0, 0]), np.array([0, 1]), widths)
     prior = ukf.initial_estimate(0.0, x0, P0)
     est = ukf.step(prior, 0.1, np.zeros(0), Measurement(z, sys.measurement(), gate=gate))
     Pp = sys.F @ P0 @ sys.F.T + sys.G @ sys.Q @ sys.G.T
     S = sys.H @ Pp @ sys.H.T + sys.R
     nu = z - sys.H @ sys.F @ x0
-    np.testing.assert_allclose(seen["innovation"][0], nu, rtol=1e-9)
-    np.testing.assert_allclose(seen["variance"][0], np.diag(S), rtol=1e-9)
+    np.testing.assert_allclose(seen["innovation"], nu, rtol=1e-9)
+    np.testing.assert_allclose(seen["variance"], np.diag(S), rtol=1e-9)
     h = sys.H[:1]
     gain = Pp @ h.T / (h @ Pp @ h.T + sys.R[:1, :1])
     np.testing.assert_allclose(est.mean[0], sys.F @ x0 + gain[:, 0] * nu[0], rtol=1e-9, atol=1e-9)

@@ -20,7 +20,7 @@ from immukf_sitl.estimation.fault_modes import (
     single_fault_modes,
 )
 from immukf_sitl.estimation.imm import ImmEstimate, ImmEstimator, sticky_transition
-from immukf_sitl.estimation.models import Measurement, MeasurementModel, ProcessModel
+from immukf_sitl.estimation.models import Measurement, MeasurementModel, ProcessModel, SampleGate
 from immukf_sitl.estimation.sigma_points import (
     JulierSigmaPoints,
     ScaledSigmaPoints,
@@ -42,6 +42,7 @@ __all__ = [
     "Measurement",
     "MeasurementModel",
     "ProcessModel",
+    "SampleGate",
     "ScaledSigmaPoints",
     "UkfEstimate",
     "UnscentedKalmanFilter",

@@ -179,3 +179,30 @@ def failure_update(
         for s_ in range(4):
             updated[j, i, s_] /= total
     return out, updated
+
+
+@numba.njit(cache=True)
+def offset_leads(pairs: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Whether each failed pair's offset way leads its weights (ties lead), ``(k,)``."""
+    out = np.empty(pairs.shape[0], dtype=np.bool_)
+    for f in range(pairs.shape[0]):
+        w = weights[pairs[f, 0], pairs[f, 1]]
+        out[f] = w[2] >= max(max(w[0], w[1]), w[3])
+    return out
+
+
+@numba.njit(cache=True)
+def outlier_widths(
+    innovation: np.ndarray, variance: np.ndarray, wide: np.ndarray, log_odds: float
+) -> np.ndarray:
+    """``V`` where a sample's outlier part beats its inlier part, 0 elsewhere, ``(k,)``.
+
+    The offset way's parts: inlier ``N(nu; 0, S)``, outlier ``N(nu; 0, S + V)`` at prior odds
+    ``exp(log_odds)``.
+    """
+    out = np.zeros(innovation.shape[0])
+    for f in range(innovation.shape[0]):
+        nu, s = innovation[f], variance[f]
+        if log_odds + _log_normal(nu, s + wide[f]) > _log_normal(nu, s):
+            out[f] = wide[f]
+    return out

@@ -29,7 +29,12 @@ from functools import cached_property
 
 import numpy as np
 
-from immukf_sitl.estimation.failure_kernels import failure_terms, failure_update
+from immukf_sitl.estimation.failure_kernels import (
+    failure_terms,
+    failure_update,
+    offset_leads,
+    outlier_widths,
+)
 from immukf_sitl.estimation.models import MeasurementFn, SampleGate
 
 IMU_CHANNELS: tuple[str, ...] = ("x", "y", "z", "p", "q", "r")
@@ -709,32 +714,23 @@ class DeadOrAnyEvidence:
         moved is still followed: each sample beyond the gate moves the weights ``1 / s``
         towards "anything", which ends the gate within three or four samples.
 
-        Returns ``(innovation, variance) -> widths``, both ``(r, nz)`` and the widths ``(r, nz)``
-        (zeros past the IMU channels), or None when no mode reads a channel through an offset.
+        Returns the gate on the pairs whose offset way leads, or None when there are none.
         """
         pairs = self._pairs
         if weights is None or self.offset is None or pairs is None:
             return None
-        modes, channels = pairs[:, 0], pairs[:, 1]
-        ways = weights[modes, channels]  # (k, 4)
-        offset_leads = ways[:, 2] >= ways.max(axis=1)
-        if not offset_leads.any():
+        leading = offset_leads(pairs, np.ascontiguousarray(weights, dtype=float))
+        if not leading.any():
             return None
-        modes, channels = modes[offset_leads], channels[offset_leads]
-        wide = (self.offset.ranges**2 / 3.0)[channels]
+        modes, channels = pairs[leading, 0], pairs[leading, 1]
+        wide = self._spreads[channels]  # V of each channel
         # the outlier part wins where nu^2 / S > 2 ln((1 - s) / s) + ln((S + V) / S), nearly
         log_odds = math.log(OUTLIER_SHARE / (1.0 - OUTLIER_SHARE))
 
-        def gate(innovation: np.ndarray, variance: np.ndarray) -> np.ndarray:
-            nu = innovation[modes, channels]
-            s = variance[modes, channels]
-            inlier = -0.5 * (nu * nu / s + np.log(s))
-            outlier = log_odds - 0.5 * (nu * nu / (s + wide) + np.log(s + wide))
-            out = np.zeros_like(variance)
-            out[modes, channels] = np.where(outlier > inlier, wide, 0.0)
-            return out
+        def widths(innovation: np.ndarray, variance: np.ndarray) -> np.ndarray:
+            return outlier_widths(innovation, variance, wide, log_odds)
 
-        return gate
+        return SampleGate(modes, channels, widths)
 
     def score(
         self,

@@ -689,6 +689,31 @@ def gain_update(pred: Prediction, x_angle: np.ndarray, out: Updated) -> int:
 
 
 @numba.njit(cache=True, error_model="numpy")
+def pair_moments(
+    z_points: np.ndarray, filters: np.ndarray, outputs: np.ndarray, mean_weights: np.ndarray,
+    cov_weights: np.ndarray, added_r: np.ndarray, z: np.ndarray, innovation: np.ndarray,
+    variance: np.ndarray,
+) -> None:  # fmt: skip
+    """The innovation (eq. 21) and its variance (eq. 20's diagonal) of some (filter, output) pairs.
+
+    ``z_points`` ``(nz, B, S)`` as :func:`update` takes them; ``filters``, ``outputs`` ``(k,)``;
+    ``added_r`` ``(B, nz, nz)``; writes ``innovation`` and ``variance`` ``(k,)``. Angle outputs
+    are not wrapped.
+    """
+    for f in range(filters.shape[0]):
+        b, i = filters[f], outputs[f]
+        predicted = 0.0
+        for s in range(z_points.shape[2]):
+            predicted += mean_weights[s] * z_points[i, b, s]  # eq. (17)
+        spread = 0.0
+        for s in range(z_points.shape[2]):
+            d = z_points[i, b, s] - predicted
+            spread += cov_weights[s] * d * d
+        innovation[f] = z[i] - predicted
+        variance[f] = spread + added_r[b, i, i]
+
+
+@numba.njit(cache=True, error_model="numpy")
 def keep_consider(
     consider: np.ndarray, pred_mean: np.ndarray, pred_cov: np.ndarray, new_mean: np.ndarray,
     new_cov: np.ndarray,

@@ -22,9 +22,6 @@ ProcessFn = Callable[[float, np.ndarray, np.ndarray, "np.ndarray | None"], np.nd
 #: ``g(t_s, x, u, w) -> z`` (eq. 2) at ``t_s``, the time of the measurement; ``w`` is ``None`` in
 #: the additive-noise form.
 MeasurementFn = Callable[[float, np.ndarray, np.ndarray, "np.ndarray | None"], np.ndarray]
-#: ``gate(innovation, variance) -> extra``, each ``(batch, nz)``: the variance each filter adds
-#: to each output at this sample, once its prediction is known (a sample a filter will not read)
-SampleGate = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
 
 def psd_sqrt(matrix: np.ndarray) -> np.ndarray:
@@ -177,6 +174,20 @@ class MeasurementModel:
 
 
 @dataclass(frozen=True)
+class SampleGate:
+    """What some filters will not read of a sample, decided once their predictions are known.
+
+    ``widths(innovation, variance)`` gets the innovation (eq. 21) of each ``(filter, output)``
+    pair and its variance (the diagonal of eq. 20), ``(k,)`` each, and returns the variance to
+    add to each pair at this sample, ``(k,)``: an outlier a filter keeps out of its update.
+    """
+
+    filters: np.ndarray
+    outputs: np.ndarray
+    widths: Callable[[np.ndarray, np.ndarray], np.ndarray]
+
+
+@dataclass(frozen=True)
 class Measurement:
     """One observation ``z(k+1)`` and the model that explains it."""
 
@@ -185,7 +196,7 @@ class Measurement:
     #: ``(batch, nz)``: variance each filter adds to each channel at this step only (e.g. a
     #: fault mode's width on a channel it believes dead or stuck); None: nothing
     extra_var: np.ndarray | None = None
-    #: what each filter will not read of this sample, given its innovation (:data:`SampleGate`)
+    #: what some filters will not read of this sample, given their innovations
     gate: SampleGate | None = None
 
     def __post_init__(self) -> None:

@@ -418,23 +418,30 @@ class UnscentedKalmanFilter:
             nis, True, gated,
         )  # fmt: skip
 
-    @staticmethod
     def _gated(
-        measurement: Measurement, z_points: np.ndarray, weights: SigmaWeights, added_r: np.ndarray
+        self,
+        measurement: Measurement,
+        z_points: np.ndarray,
+        weights: SigmaWeights,
+        added_r: np.ndarray,
     ) -> np.ndarray:
         """What the measurement's gate adds to each filter's output variances at this sample.
 
-        The gate sees each filter's innovation (eq. 21) and its variance, the diagonal of
-        ``P_zz`` (eq. 20), before anything it adds; angle outputs are not wrapped, so a gate reads
-        only the others.
+        The gate sees the innovation (eq. 21) of each of its ``(filter, output)`` pairs and its
+        variance, the diagonal of ``P_zz`` (eq. 20) before anything it adds; angle outputs are
+        not wrapped, so a gate reads only the others.
         """
-        assert measurement.gate is not None
-        predicted = z_points @ weights.mean_weights  # (nz, B), eq. (17)
-        spread = z_points - predicted[:, :, None]
-        variance = (spread * spread) @ weights.cov_weights  # diagonal of eq. (20) ...
-        variance = variance.T + np.diagonal(added_r, axis1=1, axis2=2)  # ... with R
-        innovation = measurement.z[None, :] - predicted.T
-        return np.asarray(measurement.gate(innovation, variance), dtype=float)
+        gate = measurement.gate
+        assert gate is not None
+        innovation = np.empty(gate.filters.shape[0])
+        variance = np.empty(gate.filters.shape[0])
+        self.kernels.pair_moments(
+            z_points, gate.filters, gate.outputs, weights.mean_weights, weights.cov_weights,
+            added_r, measurement.z, innovation, variance,
+        )  # fmt: skip
+        gated = np.zeros(added_r.shape[:2])
+        gated[gate.filters, gate.outputs] = gate.widths(innovation, variance)
+        return gated
 
     def _output_constants_of(
         self, model: MeasurementModel, batch: int
