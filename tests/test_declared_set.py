@@ -212,18 +212,21 @@ def _outliers(*pairs: tuple[int, int]) -> np.ndarray:
     return out
 
 
-def test_a_spike_train_is_declared_at_its_second_outlier_and_not_released_between_spikes():
-    """Slot q at 0.99 on a channel its offset explains between spikes: the first outlier its
-    gate kept out could be one tail sample, the second declares. Declared and named, an offset
-    of zero between spikes is no recovery; once the spikes stop it is, after the clear dwell."""
+def test_a_spike_train_is_declared_at_its_second_spike_and_not_released_between_spikes():
+    """Slot q at 0.99 on a channel its offset explains between spikes: an outlier its gate kept
+    out is a spike only where the base paid for it (the slot 6.9 nats ahead on that sample:
+    a gust's 5-sigma tail costs both alike); the first spike could be one tail sample, the
+    second declares. Declared and named, an offset of zero between spikes is no recovery; once
+    the spikes stop it is, after the clear dwell."""
     rng = np.random.default_rng(5)
     cfg = DetectorConfig(dwell_s=0.1, settle_s=0.0, clear_dwell_s=1.0)
     det = DeclaredSetDetector(cfg, 0.0)
     events = []
     for k in range(100):
-        spike = _outliers((5, Q)) if k in (30, 80) else _outliers()
+        spike = _outliers((5, Q)) if k in (20, 30, 50, 80) else _outliers()
+        ratio = _q_evidence(6.8 if k in (20, 50) else 6.95 if k in (30, 80) else 0.0)
         nu = _innovations(rng)
-        events += det.update(k * 0.01, _probs(5, 0.99), _imu(rng), SIGMAS, nu, None, None, spike)
+        events += det.update(k * 0.01, _probs(5, 0.99), _imu(rng), SIGMAS, nu, None, ratio, spike)
     assert [(e.kind, e.mode.name, round(e.t_s, 2)) for e in events] == [("detected", "q", 0.8)]
     det.named(Q, "spikes", 0.3, 0.8)
     events = []
@@ -238,12 +241,13 @@ def test_a_spike_train_is_declared_at_its_second_outlier_and_not_released_betwee
     assert 4.5 <= events[0].t_s <= 4.55  # the last spike at 3.50 s, and the clear dwell
 
 
-def test_one_outlier_of_a_leading_slot_does_not_declare_its_channel():
+def test_one_spike_of_a_leading_slot_does_not_declare_its_channel():
     rng = np.random.default_rng(6)
     det = DeclaredSetDetector(DetectorConfig(dwell_s=0.1, settle_s=0.0), 0.0)
     events = []
     for k in range(300):
         spike = _outliers((5, Q)) if k == 50 else _outliers()
+        ratio = _q_evidence(50.0 if k == 50 else 0.0)
         nu = _innovations(rng)
-        events += det.update(k * 0.01, _probs(5, 0.99), _imu(rng), SIGMAS, nu, None, None, spike)
+        events += det.update(k * 0.01, _probs(5, 0.99), _imu(rng), SIGMAS, nu, None, ratio, spike)
     assert events == []

@@ -24,9 +24,11 @@ channel's failure: the mode ``D + c`` is always in the bank.
   carries it over the threshold. A failing sensor keeps disagreeing with the base sample
   after sample. A spiking one disagrees a sample at a time: the slot keeps each spike out of
   its update as an outlier of the offset it learnt
-  (:meth:`~immukf_sitl.estimation.fault_modes.DeadOrAnyEvidence.outlier_gate`), and a
-  *second* outlier while it holds the threshold confirms the failure as the sustained test's
-  "without its largest sample" does.
+  (:meth:`~immukf_sitl.estimation.fault_modes.DeadOrAnyEvidence.outlier_gate`). A spike is
+  such an outlier on which the slot out-scores slot 0 by ``ln(q / (1 - q))`` in that one
+  sample (a gust's 5-sigma tail costs the base about what the outlier costs the slot); a
+  *second* spike while the slot holds the threshold confirms the failure as the sustained
+  test's "without its largest sample" does.
 - **Release** channel ``c`` in ``D`` when, for ``clear_dwell_s``, slot ``D - c`` (the
   recovery) stays above ``1 - clear_threshold`` or the offset the base learnt for the channel
   stays within its uncertainty of zero while known to ``alive_sigmas`` noise sigmas (a channel
@@ -59,8 +61,9 @@ from scipy.stats import chi2
 from immukf_sitl.estimation.fault_modes import IMU_CHANNELS, N_IMU, FaultMode, bank_modes
 from immukf_sitl.service.detection import DetectionEvent, DetectorConfig, SignatureWindow
 
-#: outliers of a channel's learnt offset that declare it while its slot holds the threshold:
-#: the first may be one tail sample, a second confirms (the sustained test's largest sample)
+#: spikes (outliers of a channel's learnt offset the base prices at the signature quantile's
+#: odds) that declare it while its slot holds the threshold: the first may be one tail sample,
+#: a second confirms (the sustained test's largest sample)
 _SPIKES_TO_DECLARE = 2
 
 
@@ -214,9 +217,14 @@ class DeclaredSetDetector:
             readings = np.asarray(imu, dtype=float)[:N_IMU] / np.asarray(imu_sigmas)[:N_IMU]
         residuals = None if innovations is None else innovations[0] ** 2 / innovations[1]
         self._window.push(readings, residuals)
+        spike = np.zeros(N_IMU + 1, dtype=bool)  # slots whose outlier this sample is a spike
         if log_likelihoods is not None:
             ratio = np.asarray(log_likelihoods, dtype=float)
             self._evidence.append(ratio - ratio[0])
+            if outliers is not None:
+                spike[1:] = np.diagonal(outliers[1:]) & (
+                    self._evidence[-1][1:] >= self._sustained_nats
+                )
         if imu is not None and imu_sigmas is not None and innovations is not None:
             self._update_life(t_s, np.asarray(imu, dtype=float), imu_sigmas, innovations)
         if outliers is not None:  # an offset of zero between spikes is not a recovery
@@ -229,7 +237,7 @@ class DeclaredSetDetector:
             level = 1.0 - cfg.clear_threshold if release else cfg.threshold
             if probabilities[j] >= level:
                 self._since.setdefault(j, t_s)
-                if outliers is not None and outliers[j, channel]:
+                if spike[j]:
                     self._outliers[j] = self._outliers.get(j, 0) + 1
             else:
                 self._since.pop(j, None)
