@@ -115,7 +115,7 @@ class DeclaredSetDetector:
         self._bits = 0 if declared is None else declared.bits
         self.modes = bank_modes(self.declared)
         self._since: dict[int, float] = {}  # slot -> when it crossed its level
-        self._outliers: dict[int, int] = {}  # slot -> outliers of its channel since then
+        self._outliers: dict[int, int] = {}  # slot -> spikes on its channel since then
         self._base_low_since: float | None = None
         self._unisolated_said = False
         self._window = SignatureWindow(config)
