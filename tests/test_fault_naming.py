@@ -71,6 +71,32 @@ def test_the_namer_names_a_declaration_once_its_window_is_in():
     assert name.size == pytest.approx(0.0524, rel=0.2)
 
 
+def test_a_sample_without_a_finite_prediction_is_left_out_of_the_name():
+    # a diverging mode hands the namer an infinite variance or a nan innovation now and then;
+    # the least-squares fits must not see them (numpy's SVD does not converge on nan), and the
+    # name is the one the finite samples give
+    rng = np.random.default_rng(3)
+    t, truth, h, healthy = _flight(rng)
+    sigmas = np.array([0.0245] * 3 + [SIGMA] * 3)
+    names = []
+    for broken in (False, True):
+        namer = FaultNamer(sigmas, window_s=0.5)
+        namer.declared(5, 4, t[0])
+        nu = np.zeros((7, 6))
+        var = np.full((7, 6), S2[0])
+        for k in range(N):
+            imu = np.zeros(6)
+            imu[4] = healthy[k] + 0.0524
+            nu[5, 4] = imu[4] - h[k]
+            var[5, 4] = S2[0]
+            if broken and k % 7 == 3:
+                nu[5, 4], var[5, 4] = (np.nan, S2[0]) if k % 2 else (0.0, np.inf)
+            for channel, name in namer.observe(t[k], imu, nu, var):
+                names.append((broken, channel, name))
+    assert [(b, c, n.kind) for b, c, n in names] == [(False, 4, "bias"), (True, 4, "bias")]
+    assert names[1][2].size == pytest.approx(names[0][2].size, rel=0.05)
+
+
 def test_small_spikes_of_either_sign_are_spikes_not_noise():
     """Spikes of 6 sigma in 5 % of the samples: a heavy tail, which no wider normal explains."""
     for seed in range(5):

@@ -185,14 +185,20 @@ class FaultNamer:
     def observe(
         self, t_s: float, imu: np.ndarray, innovations: np.ndarray, variances: np.ndarray
     ) -> list[tuple[int, FailureName]]:
-        """Feed one step; returns ``(channel, name)`` of each failure whose window is full."""
+        """Feed one step; returns ``(channel, name)`` of each failure whose window is full.
+
+        A sample whose reading, prediction or variance is not a finite number (a variance not
+        positive) says nothing of the failure and is left out.
+        """
         out = []
         for i, (j, since) in list(self._pending.items()):
             z = float(imu[i])
-            if not math.isfinite(z):
+            h = z - float(innovations[j, i])
+            s2 = float(variances[j, i])
+            if not (math.isfinite(h) and math.isfinite(s2) and s2 > 0.0):
                 continue
             samples = self._samples[i]
-            samples.append((t_s, z, z - float(innovations[j, i]), float(variances[j, i])))
+            samples.append((t_s, z, h, s2))
             if t_s - since < self.window_s - 1e-9 or len(samples) < 3:
                 continue
             t, zs, hs, s2 = (np.array(c) for c in zip(*samples, strict=True))
