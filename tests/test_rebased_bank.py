@@ -258,3 +258,41 @@ def test_the_outlier_gate_keeps_out_what_the_offset_way_calls_an_outlier():
         got = gate.widths(np.array([k * math.sqrt(s)]), np.array([s]))
         assert got.tolist() == [wide if outlier_odds(k) > 0.0 else 0.0]
     assert 4.5 < brentq(outlier_odds, 0.0, 20.0) < 5.5
+
+
+def test_a_declared_channel_reading_anything_is_read_with_its_weight_a_new_one_fully():
+    """Against a direct computation of the update's widths: ``(w_dead + w_stuck) V`` on a newly
+    failed channel, and on the declared set's channels the width that scales the channel's
+    information ``1 / R`` by its offset way's weight ``1 - w`` (``R w / (1 - w)``, ``w`` that
+    of dead, stuck and anything): the offset of a declared
+    channel was learnt before its declaration, so "anything" there is a reading the offset
+    cannot follow, while on a newly failed channel it is an offset still to learn."""
+    modes = bank_modes(FaultMode.from_name("p"))
+    evidence, imu = _evidence(modes)
+    rng = np.random.default_rng(7)
+    weights = rng.dirichlet(np.ones(4), (7, 6))
+    got = evidence.widths(weights)
+    wide, noise = imu.ranges**2 / 3.0, imu.sigmas**2
+    floor = FAILURE_WEIGHT_FLOOR
+    for j, mode in enumerate(modes):
+        for i in range(6):
+            if not mode.bits >> i & 1:
+                assert got[j, i] == 0.0
+                continue
+            if i == 3:  # p: declared, in every slot that holds it
+                w = weights[j, i, 0] + weights[j, i, 1] + weights[j, i, 3] - 3.0 * floor
+                # the information form: 1 / (R + width) = (1 - w) / R
+                assert 1.0 / (noise[i] + got[j, i]) == pytest.approx((1 - w) / noise[i])
+            else:
+                want = max(weights[j, i, 0] + weights[j, i, 1] - 2.0 * floor, 0.0) * wide[i]
+                assert got[j, i] == pytest.approx(want, rel=1e-12)
+    # a settled offset (the floors elsewhere) is read at R alone, declared or not
+    settled = np.tile(np.array([floor, floor, 1.0 - 3.0 * floor, floor]), (7, 6, 1))
+    assert np.all(np.abs(evidence.widths(settled)) <= 1e-12 * noise.max())
+    # a declared channel that reads anything for sure keeps the floors' share of its information
+    anything = np.tile(np.array([0.0, 0.0, 0.0, 1.0]), (7, 6, 1))
+    unread = 1.0 - 3.0 * floor
+    assert evidence.widths(anything)[0, 3] == pytest.approx(noise[3] * unread / (1.0 - unread))
+    # with nothing declared, "anything" widens nothing: the paper's bank learns its offsets
+    fresh, _ = _evidence(single_fault_modes())
+    assert np.all(fresh.widths(anything) <= 0.0)

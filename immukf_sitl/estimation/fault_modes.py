@@ -184,6 +184,8 @@ STUCK_SIGMAS = 0.1
 #: (a spike): the offset way is ``(1 - s) N(nu; 0, S) + s N(nu; 0, S + V)``
 #: (docs/design/detection-and-tuning.md derives it)
 OUTLIER_SHARE = 0.01
+#: the least weight a declared channel is read with: its noise at most 1e6 R
+_READ_FLOOR = 1e-6
 
 
 @dataclass(frozen=True)
@@ -685,12 +687,19 @@ class DeadOrAnyEvidence:
         """``(r, 6)``: the variance each mode gives each failed channel in its update.
 
         ``(w_dead + w_stuck) V``, ``V = range^2 / 3``: a channel its mode believes dead or
-        stuck says nothing of the state, one it believes offset (or reading anything) is read
-        through its offset. "Anything" widens only the mode's likelihood: at the first step it
-        cannot be told from an offset still to learn (both are ``N(nu; 0, S + V)``), and a
-        width on it would keep the offset from being learnt. The update is linear in the
-        channel, so it cannot follow the mixture itself; this is its moment-matched reading's
-        weight.
+        stuck says nothing of the state, one it believes offset is read through its offset.
+        On a newly failed channel "anything" widens only the mode's likelihood: at the first
+        step it cannot be told from an offset still to learn (both are ``N(nu; 0, S + V)``),
+        and a width on it would keep the offset from being learnt. On a channel of the
+        declared set (slot 0's) the offset was learnt before the declaration, so there
+        "anything" is a reading the offset cannot follow (a gain, a drift): read through an
+        offset that lags it, such a channel pulled the state, and the attitude was lost. There
+        the channel is read with the information it has when read through its offset,
+        ``(1 - w) / R`` with ``w`` the weight of dead, stuck and anything: a width
+        ``R w / (1 - w)``. (A width ``w V`` made a declared gyro with ``w`` five times its floor
+        as unread as a dead one for a step, and near ties then handed a declared bias to the
+        slot that trusts the channel.) The update is linear in the channel, so it cannot
+        follow the mixture itself; this is its reading's weight.
         """
         if weights is None or self.offset is None:
             return None
@@ -698,8 +707,21 @@ class DeadOrAnyEvidence:
         # the floors are not a belief: a settled offset is read at R alone (a floor of 1e-6 on
         # two ways would leave 2e-6 V, 13 gyro noise sigmas, to it)
         sharp = weights[:, :, 0] + weights[:, :, 1] - 2.0 * FAILURE_WEIGHT_FLOOR
-        doubt = np.maximum(sharp, 0.0)
-        return doubt * wide[None, :] * self.offset.failed.T
+        new = np.maximum(sharp, 0.0) * wide[None, :]
+        # a declared channel's offset was learnt before: there "anything" is a reading it
+        # cannot follow (a gain, a drift), and the channel informs the state in proportion to
+        # the weight it is read through its offset with: noise R / (1 - w)
+        unread = sharp + weights[:, :, 3] - FAILURE_WEIGHT_FLOOR
+        unread = np.clip(unread, 0.0, 1.0 - _READ_FLOOR)
+        declared = self.noise_var[None, :N_IMU] * unread / (1.0 - unread)
+        doubt = np.where(self._declared[None, :] > 0.5, declared, new)
+        return doubt * self.offset.failed.T
+
+    @cached_property
+    def _declared(self) -> np.ndarray:
+        """``(6,)``: 1.0 on the channels of the declared set, slot 0 of :func:`bank_modes`."""
+        assert self.offset is not None
+        return self.offset.failed[:, 0].astype(float)
 
     def outlier_gate(self, weights: np.ndarray | None) -> SampleGate | None:
         """What each mode will not read of this sample: an outlier of a channel's learnt offset.
