@@ -696,10 +696,8 @@ class DeadOrAnyEvidence:
         offset that lags it, such a channel pulled the state, and the attitude was lost. There
         the channel is read with the information it has when read through its offset,
         ``(1 - w) / R`` with ``w`` the weight of dead, stuck and anything: a width
-        ``R w / (1 - w)``. (A width ``w V`` made a declared gyro with ``w`` five times its floor
-        as unread as a dead one for a step, and near ties then handed a declared bias to the
-        slot that trusts the channel.) The update is linear in the channel, so it cannot
-        follow the mixture itself; this is its reading's weight.
+        ``R w / (1 - w)``, a weight where ``w V`` would be a switch. The update is linear in the
+        channel, so it cannot follow the mixture itself; this is its reading's weight.
         """
         if weights is None or self.offset is None:
             return None
@@ -714,14 +712,14 @@ class DeadOrAnyEvidence:
         unread = sharp + weights[:, :, 3] - FAILURE_WEIGHT_FLOOR
         unread = np.clip(unread, 0.0, 1.0 - _READ_FLOOR)
         declared = self.noise_var[None, :N_IMU] * unread / (1.0 - unread)
-        doubt = np.where(self._declared[None, :] > 0.5, declared, new)
+        doubt = np.where(self._declared[None, :], declared, new)
         return doubt * self.offset.failed.T
 
     @cached_property
     def _declared(self) -> np.ndarray:
-        """``(6,)``: 1.0 on the channels of the declared set, slot 0 of :func:`bank_modes`."""
+        """``(6,)``: whether each channel is in the declared set, slot 0 of :func:`bank_modes`."""
         assert self.offset is not None
-        return self.offset.failed[:, 0].astype(float)
+        return self.offset.failed[:, 0]
 
     def outlier_gate(self, weights: np.ndarray | None) -> SampleGate | None:
         """What each mode will not read of this sample: an outlier of a channel's learnt offset.
