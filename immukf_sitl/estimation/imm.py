@@ -139,6 +139,17 @@ class ImmEstimator:
     evidence : ObservabilityGate or DeadOrAnyEvidence, optional
         Adjusts the mode-matched log-likelihoods before eq. (26) (e.g. so that a failed channel
         scores its mode only while observable); None uses them as they are.
+    history_floor : float
+        Where eqs. (6)-(8) mix the states ``history_rows``, every mode but the first (the
+        bank's base) is weighted as if its probability were at least this (0: the textbook
+        mixing). A fault mode at the floor then takes ``onset / history_floor`` of its start
+        from the base each step and keeps the rest of its own history: a filter that has not
+        read the channel for about ``history_floor / onset`` steps, which tests a failure that
+        grows slowly (a drift) where a mode re-seeded from the base each step cannot (the base
+        has followed it). Its probability (eq. 26) and the other states are mixed as the
+        textbook does.
+    history_rows : ndarray of int, optional
+        The states that keep the floored history (default: all).
     """
 
     def __init__(
@@ -147,6 +158,8 @@ class ImmEstimator:
         transition: np.ndarray,
         probability_floor: float = 0.0,
         evidence: ObservabilityGate | DeadOrAnyEvidence | None = None,
+        history_floor: float = 0.0,
+        history_rows: np.ndarray | None = None,
     ) -> None:
         transition = np.array(transition, dtype=float)
         if transition.ndim != 2 or transition.shape[0] != transition.shape[1]:
@@ -162,6 +175,11 @@ class ImmEstimator:
             self.log_transition = np.log(transition)
         self.probability_floor = float(probability_floor)
         self.evidence = evidence
+        if not 0.0 <= history_floor < 1.0:
+            raise ValueError(f"history_floor must be in [0, 1), got {history_floor}")
+        self.history_floor = float(history_floor)
+        rows = np.arange(ukf.process.nx) if history_rows is None else np.asarray(history_rows)
+        self._history_rows = rows.astype(np.intp)
         self.angle_idx = ukf.process.angle_idx
         self._angle_mask = angle_mask(ukf.process.nx, self.angle_idx)
 
@@ -223,7 +241,27 @@ class ImmEstimator:
         return (mix.T @ weights.reshape(len(weights), -1)).reshape(weights.shape)
 
     def _mix(self, previous: ImmEstimate) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``log c_j``, the mixed means and covariances of every mode (eqs. 6-8)."""
+        """``log c_j``, the mixed means and covariances of every mode (eqs. 6-8).
+
+        With a :attr:`history_floor`, the rows ``history_rows`` of every mode but the base are
+        mixed with the fault modes' probabilities floored; ``log c_j`` stays the textbook's.
+        """
+        log_mu = np.ascontiguousarray(previous.log_mode_probabilities, dtype=float)
+        log_c, mixed_mean, mixed_cov = self._mix_with(previous, log_mu)  # eqs. (6)-(8)
+        if self.history_floor > 0.0 and len(log_mu) > 1:
+            floored = log_mu.copy()
+            floored[1:] = np.maximum(floored[1:], np.log(self.history_floor))
+            _, kept_mean, kept_cov = self._mix_with(previous, floored)
+            rows = self._history_rows
+            mixed_mean[1:, rows] = kept_mean[1:, rows]
+            block = np.ix_(np.arange(1, len(log_mu)), rows, rows)
+            mixed_cov[block] = kept_cov[block]
+        return log_c, mixed_mean, mixed_cov
+
+    def _mix_with(
+        self, previous: ImmEstimate, log_mu: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Eqs. (6)-(8) of ``previous``'s filters weighted by ``log_mu``."""
         means = np.ascontiguousarray(previous.mode_means, dtype=float)
         covs = np.ascontiguousarray(previous.mode_covs, dtype=float)
         r, nx = means.shape
@@ -231,15 +269,9 @@ class ImmEstimator:
         mixed_mean = np.empty((r, nx))
         mixed_cov = np.empty((r, nx, nx))
         self.ukf.kernels.imm_mix(
-            self.log_transition,
-            np.ascontiguousarray(previous.log_mode_probabilities, dtype=float),
-            means,
-            covs,
-            self._angle_mask,
-            log_c,
-            mixed_mean,
+            self.log_transition, log_mu, means, covs, self._angle_mask, log_c, mixed_mean,
             mixed_cov,
-        )  # eqs. (6)-(8)
+        )  # fmt: skip
         return log_c, mixed_mean, mixed_cov
 
     def step(

@@ -190,6 +190,19 @@ class ModelDynamics(ABC):
             weights[~self.offset.failed.T] = FAILURE_PRIOR
         return dataclasses.replace(bank, mode_means=means, mode_covs=covs, failure_weights=weights)
 
+    def history_rows(self) -> np.ndarray:
+        """The states a fault mode keeps its own history of: all but the channels' offsets.
+
+        A mode's offset and its failure weights are mixed as the textbook IMM mixes them, so
+        that a mode nobody believes starts its offset again from the prior: an offset learnt
+        over a long history explains the airframe's model error as the channel's, which
+        declared channels in fault-free flight.
+        """
+        rows = np.arange(self.process.nx)
+        if self.offset is None:
+            return rows
+        return np.setdiff1d(rows, rows[self.offset.states])
+
     def settled_offsets(self, bank: ImmEstimate) -> ImmEstimate:
         """``bank`` with each slot's trusted channels' offsets and weights at their prior.
 
@@ -252,7 +265,9 @@ class FilterModel(ABC):
     An untrusted mode reads its newly failed channel through an offset state
     (:class:`~immukf_sitl.estimation.fault_modes.ChannelOffset`) that walks by
     ``offset_walk_sigmas`` gyro noise sigmas a step (0.01: a bias, held once learnt; in full
-    scales, 0.41 as many of an accelerometer's).
+    scales, 0.41 as many of an accelerometer's). An untrusted bank's fault modes keep their own
+    history where the IMM mixes their states, as if their probability were at least
+    ``history_floor`` (0: the textbook mixing; :class:`~immukf_sitl.estimation.imm.ImmEstimator`).
     """
 
     name: ClassVar[str]
@@ -262,6 +277,7 @@ class FilterModel(ABC):
     probability_floor: float
     fault_signature: str
     offset_walk_sigmas: float
+    history_floor: float
 
     @property
     def settle_s(self) -> float:
@@ -388,6 +404,7 @@ class PaperModel(FilterModel):
     probability_floor: float = 1e-6
     fault_signature: str = "zero"
     offset_walk_sigmas: float = 0.01
+    history_floor: float = 0.0
 
     def __post_init__(self) -> None:
         self._check_positive(process_noise_factor=self.process_noise_factor)
@@ -533,7 +550,8 @@ class RealAirModel(FilterModel):
     turbulence_averaging_s: float = 10.0
     score_unexplained: bool = True
     fault_signature: str = "zero"
-    offset_walk_sigmas: float = 0.01
+    offset_walk_sigmas: float = 0.001
+    history_floor: float = 1e-5
 
     @property
     def settle_s(self) -> float:
@@ -708,9 +726,16 @@ class _RealAirDynamics(ModelDynamics):
             and self.modes[0].bits == 0
         ):
             score_var = air.unexplained_var()
+            n_gps = 0 if z is None else z.model.nz - N_IMU
+            if n_gps > 0:  # a fix: its channels against the spread the base's fixes show
+                score_var = np.concatenate([score_var, air.gps_unexplained_var(n_gps)])
         bank = imm.step(previous, t_next_s, controls_pair, z, process, previous_z, score_var)
         bank = self._idle_offsets(bank)
         if bank.updated and bank.innovations is not None and bank.innovation_var is not None:
+            if bank.innovations.shape[1] > N_IMU:
+                air = adapter.update_gps(
+                    air, t_next_s, bank.innovations[0, N_IMU:], bank.innovation_var[0, N_IMU:]
+                )
             lead = bank.most_likely_mode
             base = (bank.innovations[0, :6], bank.innovation_var[0, :6], self.modes[0].healthy_mask)
             air = adapter.update(

@@ -569,7 +569,13 @@ def _assemble(
 ) -> AircraftEstimator:
     """The bank of ``ukf`` over ``modes``: its chain (eq. 3), evidence and output models."""
     floor = filter_model.probability_floor if len(modes) > 1 else 0.0
-    imm = ImmEstimator(ukf, filter_model.transition(modes), floor, dynamics.gate())
+    history = 0.0
+    if len(modes) > 1 and filter_model.fault_signature == "untrusted":
+        history = filter_model.history_floor
+    imm = ImmEstimator(
+        ukf, filter_model.transition(modes), floor, dynamics.gate(), history,
+        dynamics.history_rows(),
+    )  # fmt: skip
     imu_model, imu_gps_model = aero_measurement_models(
         dynamics.flown, modes, sensors, filter_model.fault_signature, dynamics.offset
     )

@@ -99,6 +99,11 @@ class TurbulenceEstimate:
         Total weight of that average per channel.
     steps : int
         Steps since the last change of ``scale``.
+    gps_beyond, gps_beyond_weight : ndarray, shape (n,)
+        Average ``nu^2 - S`` of the base mode's GPS channels over ``unexplained_averaging_s``
+        and its weight (empty before the first fix).
+    gps_t_s : float
+        Time of the last fix folded in (NaN: none yet).
     """
 
     scale: float = 1.0
@@ -108,6 +113,9 @@ class TurbulenceEstimate:
     beyond: np.ndarray = field(default_factory=lambda: np.zeros(6))
     beyond_weight: np.ndarray = field(default_factory=lambda: np.zeros(6))
     steps: int = 0
+    gps_beyond: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    gps_beyond_weight: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    gps_t_s: float = math.nan
 
     def forget_unexplained(self, channels: np.ndarray) -> TurbulenceEstimate:
         """The estimate with the average of ``nu^2 - S`` of ``channels`` (a mask) emptied.
@@ -128,10 +136,27 @@ class TurbulenceEstimate:
         yet). The scale ``k`` is one number for every channel; this is what each channel keeps
         beyond it.
         """
-        ready = self.beyond_weight > 0.0
-        out = np.zeros(6)
-        out[ready] = np.maximum(self.beyond[ready], 0.0) / self.beyond_weight[ready]
-        return out
+        return _average(self.beyond, self.beyond_weight)
+
+    def gps_unexplained_var(self, n: int) -> np.ndarray:
+        """``(n,)``: :meth:`unexplained_var` of the ``n`` GPS channels (0 before any fix).
+
+        A fault mode that leaves a channel out predicts the fix more loosely than the base,
+        so it gains on every fix the base is overconfident on, whatever the channel did:
+        scored against the spread the base's fixes show, it gains only on what that spread
+        does not explain.
+        """
+        if self.gps_beyond.shape != (n,):
+            return np.zeros(n)
+        return _average(self.gps_beyond, self.gps_beyond_weight)
+
+
+def _average(total: np.ndarray, weight: np.ndarray) -> np.ndarray:
+    """``max(total, 0) / weight`` where some weight is in, else 0."""
+    ready = weight > 0.0
+    out = np.zeros(total.shape)
+    out[ready] = np.maximum(total[ready], 0.0) / weight[ready]
+    return out
 
 
 @dataclass(frozen=True, eq=False)
@@ -252,7 +277,40 @@ class TurbulenceAdapter:
         if steps >= self._period_steps:
             steps = 0
             scale = self._rescaled(scale, excess, predicted, weight)
-        return TurbulenceEstimate(scale, excess, predicted, weight, beyond, beyond_weight, steps)
+        return dataclasses.replace(
+            estimate, scale=scale, excess=excess, predicted=predicted, weight=weight,
+            beyond=beyond, beyond_weight=beyond_weight, steps=steps,
+        )  # fmt: skip
+
+    def update_gps(
+        self,
+        estimate: TurbulenceEstimate,
+        t_s: float,
+        innovation: np.ndarray,
+        innovation_var: np.ndarray,
+    ) -> TurbulenceEstimate:
+        """Fold one fix's innovations of the base mode into the average of ``nu^2 - S``.
+
+        Each fix weighs by the time since the previous one (``unexplained_averaging_s`` time
+        constant), and counts at most :data:`_CLIP_SIGMAS` sigmas, as the IMU channels do.
+        """
+        nu = np.asarray(innovation, dtype=float)
+        s = np.asarray(innovation_var, dtype=float)
+        if not (np.all(np.isfinite(nu)) and np.all(np.isfinite(s))):
+            return estimate
+        n = nu.shape[0]
+        beyond, weight = estimate.gps_beyond, estimate.gps_beyond_weight
+        if beyond.shape != (n,):
+            beyond, weight = np.zeros(n), np.zeros(n)
+        elapsed = t_s - estimate.gps_t_s if math.isfinite(estimate.gps_t_s) else self.dt_s
+        g = -math.expm1(-max(elapsed, 0.0) / self.unexplained_averaging_s)
+        nu2 = np.minimum(nu * nu, _CLIP_SIGMAS * _CLIP_SIGMAS * s)
+        return dataclasses.replace(
+            estimate,
+            gps_beyond=beyond + g * (nu2 - s - beyond),
+            gps_beyond_weight=weight + g * (1.0 - weight),
+            gps_t_s=float(t_s),
+        )
 
     def _rescaled(
         self, scale: float, excess: np.ndarray, predicted: np.ndarray, weight: np.ndarray
