@@ -169,6 +169,39 @@ def test_a_predict_only_step_is_the_textbook_mixing_and_combination():
     assert est.t_s == 0.1 and not est.updated and est.innovations is None
 
 
+def test_a_history_floor_mixes_the_fault_modes_history_rows_with_floored_weights():
+    # three modes, the same static process: rows 0-3 of modes 1 and 2 are mixed as if every
+    # fault mode had at least the floor's probability (hand-computed), rows 4-5 and mode 0 as
+    # the textbook mixes them, and eq. (26)'s c_j is the textbook's
+    process = ProcessModel(lambda t, x, u, v: x if v is None else x + v, 6, np.zeros((6, 6)))
+    T = np.array([[1 - 2e-3, 1e-3, 1e-3], [1e-3, 1 - 2e-3, 1e-3], [1e-3, 1e-3, 1 - 2e-3]])
+    floor, rows = 0.05, np.arange(4)
+    imm = ImmEstimator(UnscentedKalmanFilter(process), T, history_floor=floor, history_rows=rows)
+    textbook = ImmEstimator(UnscentedKalmanFilter(process), T)
+    rng = np.random.default_rng(5)
+    means = rng.normal(size=(3, 6))
+    covs = np.stack([np.eye(6) * v for v in (0.5, 1.0, 2.0)])
+    mu = np.array([1 - 2e-4, 1e-4, 1e-4])
+    previous = replace(
+        imm.initial_estimate(0.0, means[0], covs[0], mu), mode_means=means, mode_covs=covs
+    )
+    est = imm.step(previous, 0.1, np.zeros(0), None)
+    plain = textbook.step(previous, 0.1, np.zeros(0), None)
+
+    seen = np.array([mu[0], max(mu[1], floor), max(mu[2], floor)])
+    mix = T * seen[:, None] / (T.T @ seen)[None, :]
+    for j in (1, 2):
+        x0 = sum(mix[i, j] * means[i] for i in range(3))  # eq. (7), floored weights
+        P0 = sum(mix[i, j] * (covs[i] + np.outer(means[i] - x0, means[i] - x0)) for i in range(3))
+        np.testing.assert_allclose(est.mode_means[j, rows], x0[rows], rtol=1e-12)
+        np.testing.assert_allclose(est.mode_covs[j][np.ix_(rows, rows)], P0[np.ix_(rows, rows)])
+        assert mix[j, j] > 0.9  # a mode at the floor keeps most of its own history
+    np.testing.assert_allclose(est.mode_means[0], plain.mode_means[0], rtol=1e-12)
+    np.testing.assert_allclose(est.mode_means[:, 4:], plain.mode_means[:, 4:], rtol=1e-12)
+    np.testing.assert_allclose(est.mode_covs[:, 4:, 4:], plain.mode_covs[:, 4:, 4:])
+    np.testing.assert_allclose(est.mode_probabilities, T.T @ mu, rtol=1e-12)  # eq. (26)
+
+
 def test_the_process_model_gets_the_start_of_the_step_and_the_output_model_its_end():
     calls = []
     process = ProcessModel(

@@ -97,6 +97,26 @@ def test_unexplained_variance_is_the_noise_the_filter_does_not_model() -> None:
     assert forgotten[2] == 0.0 and np.all(forgotten[[0, 1, 3, 4, 5]] == beyond[[0, 1, 3, 4, 5]])
 
 
+def test_the_fixes_unexplained_variance_is_their_spread_beyond_s() -> None:
+    """GPS fixes whose innovations are normal with variance 4 S show 3 S beyond S (a
+    statistical consistency check over 10 min of 1 Hz fixes, with a 60 s time constant); a
+    fix beyond 5 sigmas counts as 5; nothing before the first fix."""
+    adapter = _adapter()
+    rng = np.random.default_rng(21)
+    s = np.array([4.0, 4.0, 9.0, 0.01, 0.0004])  # position, speed and course variances
+    est = TurbulenceEstimate()
+    assert np.all(est.gps_unexplained_var(5) == 0.0)
+    excess = []
+    for k in range(600):
+        est = adapter.update_gps(est, 1.0 + k, rng.normal(0.0, 2.0 * np.sqrt(s)), s)
+        if k >= 300:
+            excess.append(est.gps_unexplained_var(5) / s)
+    assert np.mean(excess, axis=0) == pytest.approx(np.full(5, 3.0), rel=0.15)
+    one = adapter.update_gps(TurbulenceEstimate(), 1.0, 100.0 * np.sqrt(s), s)
+    np.testing.assert_allclose(one.gps_unexplained_var(5), 24.0 * s)  # clipped: 25 S - S
+    assert np.all(one.gps_unexplained_var(3) == 0.0)  # another receiver's channels: unknown
+
+
 def test_untrusted_channels_say_nothing() -> None:
     trusted = np.array([True, True, False, True, True, True])
     est = _fly(_adapter(), np.full(6, 0.09 * Q_DESIGN), 60.0, seed=15, dead=2, trusted=trusted)
