@@ -720,12 +720,15 @@ class _RealAirDynamics(ModelDynamics):
             return self._idle_offsets(bank), air
         process = adapter.process_at(air.scale)
         score_var = None
-        if self.model.score_unexplained and self.model.fault_signature == "untrusted":
-            # the IMU channels' spread was measured on the fault-free base only (a re-based
-            # base is another filter); the fixes' is the base's, whichever it is
-            imu = air.unexplained_var() if self.modes[0].bits == 0 else np.zeros(N_IMU)
+        if (
+            self.model.score_unexplained
+            and self.model.fault_signature == "untrusted"  # the zero test needs none
+            and self.modes[0].bits == 0
+        ):
+            score_var = air.unexplained_var()
             n_gps = 0 if z is None else z.model.nz - N_IMU
-            score_var = np.concatenate([imu, air.gps_unexplained_var(n_gps)])
+            if n_gps > 0:  # a fix: its channels against the spread the base's fixes show
+                score_var = np.concatenate([score_var, air.gps_unexplained_var(n_gps)])
         bank = imm.step(previous, t_next_s, controls_pair, z, process, previous_z, score_var)
         bank = self._idle_offsets(bank)
         if bank.updated and bank.innovations is not None and bank.innovation_var is not None:
