@@ -45,6 +45,8 @@ NAMING_WINDOW_S = 1.0
 ZERO_QUANTILE = 0.999
 #: readings whose spread is below this many noise sigmas are not a live sensor's
 STUCK_SPREAD_SIGMAS = 0.1
+#: a drift moves its channel by more than this many sigmas of the prediction over the window
+DRIFT_SIGMAS = 3.0
 #: expectation-maximisation steps of the spike mixture's fit (it settles in a few dozen)
 _SPIKE_EM_STEPS = 60
 
@@ -88,6 +90,12 @@ def classify_failure(
     candidates = [
         _bias(e, s2), _drift(t, e, s2), _scale(e, h, s2), _noise(e, s2, r), _spikes(e, s2)
     ]  # fmt: skip
+    # a ramp the prediction's own error could make is no drift: h's error (variance s2 - R)
+    # settles over the window after a declaration, by up to a few of its sigmas
+    prediction_sigma = math.sqrt(max(float(np.mean(s2)) - r, 0.0))
+    drift = candidates[1]
+    if abs(drift[3]) * float(t[-1] - t[0]) <= DRIFT_SIGMAS * prediction_sigma:
+        candidates.remove(drift)
     best = max(candidates, key=lambda c: c[0] - 0.5 * c[1] * math.log(n))
     return FailureName(best[2], best[3])
 
