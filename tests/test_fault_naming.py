@@ -50,6 +50,25 @@ def test_each_kind_is_named_with_its_size_within_20_percent(kind, size, make):
             assert named.size == pytest.approx(size, rel=0.2), (seed, named)
 
 
+def test_a_bias_seen_through_a_settling_prediction_is_no_drift():
+    # the prediction starts 2 of its sigmas off and settles within 0.3 s (a re-based mode's
+    # transient): the residual's ramp over the window is under 3 prediction sigmas, so the
+    # bias is named, where the best fit alone would take the ramp; a drift moving the channel
+    # by 6 prediction sigmas over the window is still named drift
+    prediction_sigma = 0.02
+    s2 = np.full(N, SIGMA**2 + prediction_sigma**2)
+    for seed in range(5):
+        rng = np.random.default_rng(seed)
+        t, truth, _, healthy = _flight(rng)
+        settling = 2.0 * prediction_sigma * np.exp(-(t - t[0]) / 0.1)
+        h = truth + settling
+        named = classify_failure(t, healthy + 0.3, h, s2, SIGMA)
+        assert named.kind == "bias" and named.size == pytest.approx(0.3, rel=0.2), (seed, named)
+        ramp = 6.0 * prediction_sigma * (t - t[0]) / (t[-1] - t[0])
+        drift = classify_failure(t, healthy + 0.3 + ramp, truth, s2, SIGMA)
+        assert drift.kind == "drift", (seed, drift)
+
+
 def test_the_namer_names_a_declaration_once_its_window_is_in():
     rng = np.random.default_rng(3)
     t, truth, h, healthy = _flight(rng)

@@ -507,9 +507,10 @@ class RealAirModel(FilterModel):
     with ``adaptive_turbulence`` the wind and gust states' driving noise is scaled in flight to the
     air the innovations show, between ``turbulence_floor`` (0.1) and 1 times the design's, from
     ``turbulence_averaging_s`` (10 s) averages. With ``score_unexplained`` and the untrusted modes,
-    while nothing is declared, each IMU channel's variance beyond ``S`` over the last minute is
-    added to ``S`` where the modes are scored, not in the gain (a re-based bank's base is another
-    filter, whose spread that average did not measure). ``model_uncertainty`` (10 % aero, 5 % mass,
+    while nothing is declared, each IMU channel's and each GPS channel's variance beyond ``S``
+    over the last minute (the base's innovations) is added to ``S`` where the modes are scored,
+    not in the gain (a re-based bank's base is another filter, whose spread that average did not
+    measure). ``model_uncertainty`` (10 % aero, 5 % mass,
     10 % inertia, 1-sigma relative) sizes the force and moment corrections, whose part that changes
     with the flight condition is a random walk over ``correction_time_constant_s`` (10 s).
     ``initial_wind_sigma_mps`` (10 m/s): nothing much is known of the wind at start-up.
@@ -526,6 +527,13 @@ class RealAirModel(FilterModel):
     evidence; every fault mode starts at ``initial_fault_probability`` (its onset probability):
     the chain's stationary distribution would be 1/7 per mode, a 6-in-7 belief that some sensor
     is dead at power-on.
+
+    An untrusted bank's fault modes keep their own history (``history_floor`` 1e-5): each
+    takes 1 % of its start from the base a step, so it is a filter that has not read its
+    channel for about a second, and a failure that grows too slowly for the base to notice (a
+    drift, which the base's bias and gust states follow) shows against it, mostly at the GPS
+    fixes. Their offsets walk by ``offset_walk_sigmas`` 0.001 gyro sigmas a step (a mode with a
+    history of its own fits less of the airframe's model error as the channel's offset).
     """
 
     name: ClassVar[str] = "real-air"
