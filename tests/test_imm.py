@@ -175,8 +175,8 @@ def test_a_history_floor_mixes_the_fault_modes_history_rows_with_floored_weights
     # the textbook mixes them, and eq. (26)'s c_j is the textbook's
     process = ProcessModel(lambda t, x, u, v: x if v is None else x + v, 6, np.zeros((6, 6)))
     T = np.array([[1 - 2e-3, 1e-3, 1e-3], [1e-3, 1 - 2e-3, 1e-3], [1e-3, 1e-3, 1 - 2e-3]])
-    floor, rows = 0.05, np.arange(4)
-    imm = ImmEstimator(UnscentedKalmanFilter(process), T, history_floor=floor, history_rows=rows)
+    floor, rows = 0.05, slice(0, 4)
+    imm = ImmEstimator(UnscentedKalmanFilter(process), T, history_floor=floor, history_states=rows)
     textbook = ImmEstimator(UnscentedKalmanFilter(process), T)
     rng = np.random.default_rng(5)
     means = rng.normal(size=(3, 6))
@@ -194,7 +194,7 @@ def test_a_history_floor_mixes_the_fault_modes_history_rows_with_floored_weights
         x0 = sum(mix[i, j] * means[i] for i in range(3))  # eq. (7), floored weights
         P0 = sum(mix[i, j] * (covs[i] + np.outer(means[i] - x0, means[i] - x0)) for i in range(3))
         np.testing.assert_allclose(est.mode_means[j, rows], x0[rows], rtol=1e-12)
-        np.testing.assert_allclose(est.mode_covs[j][np.ix_(rows, rows)], P0[np.ix_(rows, rows)])
+        np.testing.assert_allclose(est.mode_covs[j][rows, rows], P0[rows, rows])
         assert mix[j, j] > 0.9  # a mode at the floor keeps most of its own history
     np.testing.assert_allclose(est.mode_means[0], plain.mode_means[0], rtol=1e-12)
     np.testing.assert_allclose(est.mode_means[:, 4:], plain.mode_means[:, 4:], rtol=1e-12)

@@ -140,7 +140,7 @@ class ImmEstimator:
         Adjusts the mode-matched log-likelihoods before eq. (26) (e.g. so that a failed channel
         scores its mode only while observable); None uses them as they are.
     history_floor : float
-        Where eqs. (6)-(8) mix the states ``history_rows``, every mode but the first (the
+        Where eqs. (6)-(8) mix the states ``history_states``, every mode but the first (the
         bank's base) is weighted as if its probability were at least this (0: the textbook
         mixing). A fault mode at the floor then takes ``onset / history_floor`` of its start
         from the base each step and keeps the rest of its own history: a filter that has not
@@ -148,7 +148,7 @@ class ImmEstimator:
         grows slowly (a drift) where a mode re-seeded from the base each step cannot (the base
         has followed it). Its probability (eq. 26) and the other states are mixed as the
         textbook does.
-    history_rows : ndarray of int, optional
+    history_states : slice, optional
         The states that keep the floored history (default: all).
     """
 
@@ -159,7 +159,7 @@ class ImmEstimator:
         probability_floor: float = 0.0,
         evidence: ObservabilityGate | DeadOrAnyEvidence | None = None,
         history_floor: float = 0.0,
-        history_rows: np.ndarray | None = None,
+        history_states: slice | None = None,
     ) -> None:
         transition = np.array(transition, dtype=float)
         if transition.ndim != 2 or transition.shape[0] != transition.shape[1]:
@@ -178,8 +178,7 @@ class ImmEstimator:
         if not 0.0 <= history_floor < 1.0:
             raise ValueError(f"history_floor must be in [0, 1), got {history_floor}")
         self.history_floor = float(history_floor)
-        rows = np.arange(ukf.process.nx) if history_rows is None else np.asarray(history_rows)
-        self._history_rows = rows.astype(np.intp)
+        self._history = slice(None) if history_states is None else history_states
         self.angle_idx = ukf.process.angle_idx
         self._angle_mask = angle_mask(ukf.process.nx, self.angle_idx)
 
@@ -243,7 +242,7 @@ class ImmEstimator:
     def _mix(self, previous: ImmEstimate) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``log c_j``, the mixed means and covariances of every mode (eqs. 6-8).
 
-        With a :attr:`history_floor`, the rows ``history_rows`` of every mode but the base are
+        With a :attr:`history_floor`, the states ``history_states`` of every mode but the base are
         mixed with the fault modes' probabilities floored; ``log c_j`` stays the textbook's.
         """
         log_mu = np.ascontiguousarray(previous.log_mode_probabilities, dtype=float)
@@ -252,10 +251,9 @@ class ImmEstimator:
             floored = log_mu.copy()
             floored[1:] = np.maximum(floored[1:], np.log(self.history_floor))
             _, kept_mean, kept_cov = self._mix_with(previous, floored)
-            rows = self._history_rows
+            rows = self._history
             mixed_mean[1:, rows] = kept_mean[1:, rows]
-            block = np.ix_(np.arange(1, len(log_mu)), rows, rows)
-            mixed_cov[block] = kept_cov[block]
+            mixed_cov[1:, rows, rows] = kept_cov[1:, rows, rows]
         return log_c, mixed_mean, mixed_cov
 
     def _mix_with(

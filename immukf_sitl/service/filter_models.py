@@ -190,18 +190,15 @@ class ModelDynamics(ABC):
             weights[~self.offset.failed.T] = FAILURE_PRIOR
         return dataclasses.replace(bank, mode_means=means, mode_covs=covs, failure_weights=weights)
 
-    def history_rows(self) -> np.ndarray:
+    def history_states(self) -> slice:
         """The states a fault mode keeps its own history of: all but the channels' offsets.
 
         A mode's offset and its failure weights are mixed as the textbook IMM mixes them, so
         that a mode nobody believes starts its offset again from the prior: an offset learnt
         over a long history explains the airframe's model error as the channel's, which
-        declared channels in fault-free flight.
+        declared channels in fault-free flight. The offsets are the last states.
         """
-        rows = np.arange(self.process.nx)
-        if self.offset is None:
-            return rows
-        return np.setdiff1d(rows, rows[self.offset.states])
+        return slice(0, self.process.nx if self.offset is None else self.offset.index)
 
     def settled_offsets(self, bank: ImmEstimate) -> ImmEstimate:
         """``bank`` with each slot's trusted channels' offsets and weights at their prior.

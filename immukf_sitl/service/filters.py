@@ -574,7 +574,7 @@ def _assemble(
         history = filter_model.history_floor
     imm = ImmEstimator(
         ukf, filter_model.transition(modes), floor, dynamics.gate(), history,
-        dynamics.history_rows(),
+        dynamics.history_states(),
     )  # fmt: skip
     imu_model, imu_gps_model = aero_measurement_models(
         dynamics.flown, modes, sensors, filter_model.fault_signature, dynamics.offset
