@@ -150,6 +150,8 @@ class ImmEstimator:
         textbook does.
     history_states : slice, optional
         The states that keep the floored history (default: all).
+    history_slots : ndarray of bool, optional
+        ``(r,)``: the modes that keep it (default: all but the first).
     """
 
     def __init__(
@@ -160,6 +162,7 @@ class ImmEstimator:
         evidence: ObservabilityGate | DeadOrAnyEvidence | None = None,
         history_floor: float = 0.0,
         history_states: slice | None = None,
+        history_slots: np.ndarray | None = None,
     ) -> None:
         transition = np.array(transition, dtype=float)
         if transition.ndim != 2 or transition.shape[0] != transition.shape[1]:
@@ -179,6 +182,10 @@ class ImmEstimator:
             raise ValueError(f"history_floor must be in [0, 1), got {history_floor}")
         self.history_floor = float(history_floor)
         self._history = slice(None) if history_states is None else history_states
+        slots = np.arange(n_modes) > 0 if history_slots is None else np.asarray(history_slots)
+        if slots.shape != (n_modes,) or slots[0]:
+            raise ValueError("history_slots: one flag per mode, the base's False")
+        self._history_slots = np.flatnonzero(slots)
         self.angle_idx = ukf.process.angle_idx
         self._angle_mask = angle_mask(ukf.process.nx, self.angle_idx)
 
@@ -242,18 +249,19 @@ class ImmEstimator:
     def _mix(self, previous: ImmEstimate) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``log c_j``, the mixed means and covariances of every mode (eqs. 6-8).
 
-        With a :attr:`history_floor`, the states ``history_states`` of every mode but the base are
-        mixed with the fault modes' probabilities floored; ``log c_j`` stays the textbook's.
+        With a :attr:`history_floor`, the states ``history_states`` of the ``history_slots`` are
+        mixed with those modes' probabilities floored; ``log c_j`` stays the textbook's.
         """
         log_mu = np.ascontiguousarray(previous.log_mode_probabilities, dtype=float)
         log_c, mixed_mean, mixed_cov = self._mix_with(previous, log_mu)  # eqs. (6)-(8)
-        if self.history_floor > 0.0 and len(log_mu) > 1:
+        slots = self._history_slots
+        if self.history_floor > 0.0 and slots.size:
             floored = log_mu.copy()
-            floored[1:] = np.maximum(floored[1:], np.log(self.history_floor))
+            floored[slots] = np.maximum(floored[slots], np.log(self.history_floor))
             _, kept_mean, kept_cov = self._mix_with(previous, floored)
             rows = self._history
-            mixed_mean[1:, rows] = kept_mean[1:, rows]
-            mixed_cov[1:, rows, rows] = kept_cov[1:, rows, rows]
+            mixed_mean[slots, rows] = kept_mean[slots, rows]
+            mixed_cov[slots, rows, rows] = kept_cov[slots, rows, rows]
         return log_c, mixed_mean, mixed_cov
 
     def _mix_with(

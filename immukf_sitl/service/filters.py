@@ -572,9 +572,13 @@ def _assemble(
     history = 0.0
     if len(modes) > 1 and filter_model.fault_signature == "untrusted":
         history = filter_model.history_floor
+    # a further failure is tested by a filter without the channel; a recovery against the
+    # base, which predicts what the channel reads once healthy (with a history of its own, a
+    # slot that trusts a dead gyro again follows its zeros and took the lead from the base)
+    further = np.array([bool(m.bits & ~modes[0].bits) for m in modes])
     imm = ImmEstimator(
         ukf, filter_model.transition(modes), floor, dynamics.gate(), history,
-        dynamics.history_states(),
+        dynamics.history_states(), further,
     )  # fmt: skip
     imu_model, imu_gps_model = aero_measurement_models(
         dynamics.flown, modes, sensors, filter_model.fault_signature, dynamics.offset
