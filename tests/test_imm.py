@@ -200,6 +200,16 @@ def test_a_history_floor_mixes_the_fault_modes_history_rows_with_floored_weights
     np.testing.assert_allclose(est.mode_means[:, 4:], plain.mode_means[:, 4:], rtol=1e-12)
     np.testing.assert_allclose(est.mode_covs[:, 4:, 4:], plain.mode_covs[:, 4:, 4:])
     np.testing.assert_allclose(est.mode_probabilities, T.T @ mu, rtol=1e-12)  # eq. (26)
+    # a slot left out of the history slots (a recovery) is mixed as the textbook mixes it
+    recovery = ImmEstimator(
+        UnscentedKalmanFilter(process), T, history_floor=floor, history_states=rows,
+        history_slots=np.array([False, True, False]),
+    )  # fmt: skip
+    mixed = recovery.step(previous, 0.1, np.zeros(0), None)
+    np.testing.assert_allclose(mixed.mode_means[2], plain.mode_means[2], rtol=1e-12)
+    np.testing.assert_allclose(mixed.mode_means[1], est.mode_means[1], rtol=1e-12)
+    with pytest.raises(ValueError, match="history_slots"):
+        ImmEstimator(UnscentedKalmanFilter(process), T, history_slots=np.ones(3, dtype=bool))
 
 
 def test_the_process_model_gets_the_start_of_the_step_and_the_output_model_its_end():
