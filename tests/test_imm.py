@@ -207,7 +207,10 @@ def test_a_history_floor_mixes_the_fault_modes_history_rows_with_floored_weights
     )  # fmt: skip
     mixed = recovery.step(previous, 0.1, np.zeros(0), None)
     np.testing.assert_allclose(mixed.mode_means[2], plain.mode_means[2], rtol=1e-12)
-    np.testing.assert_allclose(mixed.mode_means[1], est.mode_means[1], rtol=1e-12)
+    seen = np.array([mu[0], max(mu[1], floor), mu[2]])
+    mix = T * seen[:, None] / (T.T @ seen)[None, :]
+    x1 = sum(mix[i, 1] * means[i] for i in range(3))  # eq. (7), slot 1's floored weights
+    np.testing.assert_allclose(mixed.mode_means[1, rows], x1[rows], rtol=1e-12)
     with pytest.raises(ValueError, match="history_slots"):
         ImmEstimator(UnscentedKalmanFilter(process), T, history_slots=np.ones(3, dtype=bool))
 
