@@ -525,12 +525,13 @@ class RealAirModel(FilterModel):
     the chain's stationary distribution would be 1/7 per mode, a 6-in-7 belief that some sensor
     is dead at power-on.
 
-    An untrusted bank's fault modes keep their own history (``history_floor`` 1e-5): each
-    takes 1 % of its start from the base a step, so it is a filter that has not read its
-    channel for about a second, and a failure that grows too slowly for the base to notice (a
-    drift, which the base's bias and gust states follow) shows against it, mostly at the GPS
-    fixes. Their offsets walk by ``offset_walk_sigmas`` 0.001 gyro sigmas a step (a mode with a
-    history of its own fits less of the airframe's model error as the channel's offset).
+    Until a first declaration an untrusted bank's fault modes keep their own history
+    (``history_floor`` 1e-5): each takes 1 % of its start from the base a step, so it is a
+    filter that has not read its channel for about a second, and a failure that grows too slowly
+    for the base to notice (a drift, which the base's bias and gust states follow) shows against
+    it, mostly at the GPS fixes. Their offsets walk by ``offset_walk_sigmas`` 0.001 gyro sigmas
+    a step (a mode with a history of its own fits less of the airframe's model error as the
+    channel's offset).
     """
 
     name: ClassVar[str] = "real-air"

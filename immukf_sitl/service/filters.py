@@ -569,16 +569,16 @@ def _assemble(
 ) -> AircraftEstimator:
     """The bank of ``ukf`` over ``modes``: its chain (eq. 3), evidence and output models."""
     floor = filter_model.probability_floor if len(modes) > 1 else 0.0
+    # the fault modes keep a history of their own until a first declaration; in a re-based
+    # bank they mix as the textbook does: a recovery slot with a history followed a dead gyro's
+    # zeros and took the lead, and slots without a further channel won at the fixes once the
+    # base read a declared drifting gyro (docs/design/detection-and-tuning.md)
     history = 0.0
-    if len(modes) > 1 and filter_model.fault_signature == "untrusted":
+    if len(modes) > 1 and filter_model.fault_signature == "untrusted" and modes[0].bits == 0:
         history = filter_model.history_floor
-    # a further failure is tested by a filter without the channel; a recovery against the
-    # base, which predicts what the channel reads once healthy (with a history of its own, a
-    # slot that trusts a dead gyro again follows its zeros and took the lead from the base)
-    further = np.array([bool(m.bits & ~modes[0].bits) for m in modes])
     imm = ImmEstimator(
         ukf, filter_model.transition(modes), floor, dynamics.gate(), history,
-        dynamics.history_states(), further,
+        dynamics.history_states(),
     )  # fmt: skip
     imu_model, imu_gps_model = aero_measurement_models(
         dynamics.flown, modes, sensors, filter_model.fault_signature, dynamics.offset
