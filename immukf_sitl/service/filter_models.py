@@ -262,9 +262,10 @@ class FilterModel(ABC):
     An untrusted mode reads its newly failed channel through an offset state
     (:class:`~immukf_sitl.estimation.fault_modes.ChannelOffset`) that walks by
     ``offset_walk_sigmas`` gyro noise sigmas a step (0.01: a bias, held once learnt; in full
-    scales, 0.41 as many of an accelerometer's). An untrusted bank's fault modes keep their own
-    history where the IMM mixes their states, as if their probability were at least
-    ``history_floor`` (0: the textbook mixing; :class:`~immukf_sitl.estimation.imm.ImmEstimator`).
+    scales, 0.41 as many of an accelerometer's). Until a first declaration an untrusted bank's
+    fault modes keep their own history where the IMM mixes their states, as if their probability
+    were at least ``history_floor`` (0: the textbook mixing;
+    :class:`~immukf_sitl.estimation.imm.ImmEstimator`).
     """
 
     name: ClassVar[str]
