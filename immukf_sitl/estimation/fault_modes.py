@@ -186,6 +186,15 @@ STUCK_SIGMAS = 0.1
 OUTLIER_SHARE = 0.01
 #: the least weight a declared channel is read with: its noise at most 1e6 R
 _READ_FLOOR = 1e-6
+#: prior variance of a declared channel's drift rate, in full scales a second, squared: a 1-sigma
+#: drift crosses the sensor's range in ten minutes (a gyro of 2000 deg/s: 0.058 rad/s a second),
+#: far beyond the drifts of a failing sensor's spec sheet, so that any drift is learnt from its
+#: readings and none is pulled towards zero
+DRIFT_PRIOR_VAR = (1.0 / 600.0) ** 2
+#: prior variance of a declared channel's gain error: 1 sigma a gain off by half
+GAIN_PRIOR_VAR = 0.5**2
+#: a drift rate or gain regains its prior variance over this long (s): its walk
+ERROR_MODEL_MEMORY_S = 100.0
 
 
 @dataclass(frozen=True)
@@ -204,6 +213,14 @@ class ChannelOffset:
     channel ``i`` hold ``e_i`` at its prior, so that mixing (eqs. 6-8) seeds a slot from them
     with an offset still to learn.
 
+    A channel of the declared set (slot 0's failed channels: ``tracked``) reads more than an
+    offset: ``z_i = (1 + g_i) h_i(x) + range_i e_i`` with ``e_i`` moving at a drift rate ``d_i``
+    a second (full scales), ``g_i`` and ``d_i`` two states of its own after the six offsets
+    (:meth:`tracked_rows`). An offset that only walks lags a drift or a gain, and the state
+    followed the channel through that lag until the attitude was lost; a bias learns
+    ``d = g = 0``. They are a declared channel's alone: a bank with nothing declared has none,
+    so the detection is the offsets' alone.
+
     Parameters
     ----------
     modes : sequence of FaultMode
@@ -214,16 +231,41 @@ class ChannelOffset:
         Where ``e_x`` is in the state (``e_y`` ... ``e_r`` follow).
     walk_var : float
         Variance an offset gains per step (full scales squared).
+    tracked : tuple of int
+        Channels (IMU order) with a drift rate and a gain: the declared set.
     """
 
     modes: tuple[FaultMode, ...]
     ranges: np.ndarray
     index: int
     walk_var: float
+    tracked: tuple[int, ...] = ()
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "modes", tuple(self.modes))
         object.__setattr__(self, "ranges", np.asarray(self.ranges, dtype=float))
+        object.__setattr__(self, "tracked", tuple(int(c) for c in self.tracked))
+
+    @property
+    def n_states(self) -> int:
+        """The offsets' states: six offsets, then a drift rate and a gain per tracked channel."""
+        return N_IMU + 2 * len(self.tracked)
+
+    def tracked_rows(self, k: int) -> tuple[int, int]:
+        """State rows of the ``k``-th tracked channel's drift rate and gain."""
+        row = self.index + N_IMU + 2 * k
+        return row, row + 1
+
+    @cached_property
+    def _tracking(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Each tracked channel, its drift-rate and gain rows, and ``(k, r)``: who reads them.
+
+        A slot reads a tracked channel's error states where it believes the channel failed.
+        """
+        channels = np.array(self.tracked, dtype=np.int64)
+        rates = self.index + N_IMU + 2 * np.arange(len(channels), dtype=np.int64)
+        reads = self.failed[channels] if len(channels) else np.zeros((0, len(self.modes)), bool)
+        return channels, rates, rates + 1, reads
 
     @cached_property
     def failed(self) -> np.ndarray:
@@ -240,40 +282,116 @@ class ChannelOffset:
         """The six offsets' rows of the state."""
         return slice(self.index, self.index + N_IMU)
 
-    def output(self, x: np.ndarray) -> np.ndarray:
-        """``(6, r, ...)``: what the offsets add to the IMU channels of ``x (nx, r, ...)``."""
+    def output(self, x: np.ndarray, healthy: np.ndarray | None = None) -> np.ndarray:
+        """``(6, r, ...)``: what the offsets add to the IMU channels of ``x (nx, r, ...)``.
+
+        ``healthy``: the IMU channels the state predicts, ``(6, r, ...)``, which a tracked
+        channel's gain scales (needed when there are tracked channels).
+        """
         e = x[self.states]
-        return self.gain.reshape(self.gain.shape + (1,) * (e.ndim - 2)) * e
+        out = self.gain.reshape(self.gain.shape + (1,) * (e.ndim - 2)) * e
+        channels, _, gains, reads = self._tracking
+        if len(channels):
+            assert healthy is not None
+            for k, c in enumerate(channels):
+                read = reads[k].reshape((-1,) + (1,) * (e.ndim - 2))
+                out[c] += read * x[gains[k]] * healthy[c]  # z = (1 + g) h + range e
+        return out
+
+    def fly(self, x: np.ndarray, out: np.ndarray, dt_s: float) -> None:
+        """The offsets' step from ``x (nx, ...)`` into ``out``.
+
+        Random walks (their noise is the process noise); a tracked channel's offset moves by
+        its drift rate.
+        """
+        rows = slice(self.index, self.index + self.n_states)
+        out[rows] = x[rows]
+        channels, rates, _, _ = self._tracking
+        for k, c in enumerate(channels):
+            out[self.index + c] += dt_s * x[rates[k]]
+
+    def prior(self) -> tuple[np.ndarray, np.ndarray]:
+        """Mean and variance of the offsets' states before anything is learnt."""
+        var = np.full(self.n_states, OFFSET_PRIOR_VAR)
+        var[N_IMU::2] = DRIFT_PRIOR_VAR
+        var[N_IMU + 1 :: 2] = GAIN_PRIOR_VAR
+        return np.zeros(self.n_states), var
+
+    def walk(self, dt_s: float) -> np.ndarray:
+        """Variance each offset state gains per step of ``dt_s``.
+
+        An offset ``walk_var``; a drift rate and a gain their prior over
+        :data:`ERROR_MODEL_MEMORY_S`.
+        """
+        _, var = self.prior()
+        var *= dt_s / ERROR_MODEL_MEMORY_S
+        var[:N_IMU] = self.walk_var
+        return var
 
     def reset(self, means: np.ndarray, covs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Copies of ``means (r, nx)``, ``covs (r, nx, nx)``: trusted channels' offsets at prior."""
+        """Copies of ``means (r, nx)``, ``covs (r, nx, nx)``: trusted channels' offsets at prior.
+
+        A slot that trusts a tracked channel holds its drift rate and gain at their prior too.
+        """
         means, covs = means.copy(), covs.copy()
-        slots, rows = self._trusted
+        slots, rows, var = self._trusted
         means[slots, rows] = 0.0
         covs[slots, rows, :] = 0.0
         covs[slots, :, rows] = 0.0
-        covs[slots, rows, rows] = OFFSET_PRIOR_VAR
+        covs[slots, rows, rows] = var
         return means, covs
 
     @cached_property
-    def _trusted(self) -> tuple[np.ndarray, np.ndarray]:
-        """Slot and state row of every offset a slot holds at its prior."""
+    def _trusted(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Slot, state row and prior variance of every offset state a slot holds at its prior."""
         channels, slots = np.nonzero(~self.failed)
-        return slots, self.index + channels
+        rows = [self.index + channels]
+        held = [slots]
+        _, prior_var = self.prior()
+        for k, c in enumerate(self.tracked):
+            trusting = np.flatnonzero(~self.failed[c])
+            for row in self.tracked_rows(k):
+                held.append(trusting)
+                rows.append(np.full(len(trusting), row))
+        slot_idx, row_idx = np.concatenate(held), np.concatenate(rows)
+        return slot_idx, row_idx, prior_var[row_idx - self.index]
+
+    def gain_reading(self, means: np.ndarray, nu: np.ndarray, z: np.ndarray | None) -> np.ndarray:
+        """``(r, 6)``: what each slot's gains add to its failed channels, ``g h``.
+
+        The prediction ``h = (z - nu - range e) / (1 + g)`` is taken from the innovation ``nu``
+        of the reading ``z``.
+        """
+        out = np.zeros(nu.shape)
+        channels, _, gains, reads = self._tracking
+        if z is None or not len(channels):
+            return out
+        for k, c in enumerate(channels):
+            g = means[:, gains[k]]
+            h = (z[c] - nu[:, c] - self.ranges[c] * means[:, self.index + c]) / (1.0 + g)
+            out[:, c] = np.where(reads[k], g * h, 0.0)
+        return out
 
     def residuals(
-        self, means: np.ndarray, covs: np.ndarray, nu: np.ndarray, var: np.ndarray
+        self,
+        means: np.ndarray,
+        covs: np.ndarray,
+        nu: np.ndarray,
+        var: np.ndarray,
+        z: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """``nu``, ``var (r, 6)`` with each failed channel's entry its learnt offset.
 
         The residual of a slot's prediction of a channel it believes failed *without* the
-        offset, ``z - h = range e``, and its variance: how far the channel reads from what the
-        other sensors say, which the detector's tests and the naming read.
+        offset, ``z - h = range e`` (plus a tracked channel's ``g h``, given the reading ``z``),
+        and its variance: how far the channel reads from what the other sensors say, which the
+        detector's tests and the naming read.
         """
+        gained = self.gain_reading(means, nu, z)
         nu, var = nu.copy(), var.copy()
         i, j = np.nonzero(self.failed)
         rows = self.index + i
-        nu[j, i] = self.ranges[i] * means[j, rows]
+        nu[j, i] = self.ranges[i] * means[j, rows] + gained[j, i]
         var[j, i] = self.ranges[i] ** 2 * covs[j, rows, rows]
         return nu, var
 
@@ -283,16 +401,19 @@ class ChannelOffset:
         nu: np.ndarray,
         var: np.ndarray,
         reference: np.ndarray,
+        z: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """``nu``, ``var (r, 6)``: what a failed channel's kind and size are read from.
 
-        Each failed channel's reading against its offset-free prediction, ``z - h(x(k+1|k))``,
-        and how well a mode that trusts the channel predicts it (``var`` of the ``reference``
-        slots of :func:`reference_slots`, in :func:`failed_channels` order).
+        Each failed channel's reading against its offset-free prediction, ``z - h(x(k+1|k))``
+        (a tracked channel's gain part too, given the reading ``z``), and how well a mode that
+        trusts the channel predicts it (``var`` of the ``reference`` slots of
+        :func:`reference_slots`, in :func:`failed_channels` order).
         """
+        gained = self.gain_reading(predicted_means, nu, z)
         nu, out = nu.copy(), var.copy()
         j, i = failed_channels(self.modes)
-        nu[j, i] += self.ranges[i] * predicted_means[j, self.index + i]
+        nu[j, i] += self.ranges[i] * predicted_means[j, self.index + i] + gained[j, i]
         out[j, i] = var[reference, i]
         return nu, out
 
@@ -335,7 +456,7 @@ def fault_mode_output(
         def untrusted(t_s: float, x: np.ndarray, u: np.ndarray, w: np.ndarray | None) -> np.ndarray:
             z = healthy_output(t_s, x, u, None)
             if offset is not None:
-                z[:N_IMU] += offset.output(x)
+                z[:N_IMU] += offset.output(x, z[:N_IMU])
             return z if w is None else z + w
 
         return untrusted

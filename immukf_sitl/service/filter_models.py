@@ -48,7 +48,7 @@ from immukf_sitl.estimation import (
     ScaledSigmaPoints,
     fault_mode_noise_var,
 )
-from immukf_sitl.estimation.fault_modes import FAILURE_PRIOR, N_IMU, OFFSET_PRIOR_VAR
+from immukf_sitl.estimation.fault_modes import FAILURE_PRIOR, IMU_CHANNELS, N_IMU
 from immukf_sitl.models.aero import AeroModel
 from immukf_sitl.models.airframe import AirframeUncertainty
 from immukf_sitl.models.augmented import (
@@ -129,55 +129,100 @@ class ModelDynamics(ABC):
     def with_modes(self, modes: Sequence[FaultMode]) -> ModelDynamics:
         """The same model over another bank of modes (a bank re-based on a declaration).
 
-        Only the evidence, the offsets and the turbulence adapter's choice of channels read the
-        modes; the process, the flown model and what was learnt are shared.
+        Only the evidence, the offsets (each declared channel's drift rate and gain: the state
+        grows by two per declared channel) and the turbulence adapter's choice of channels
+        read the modes; the flown model and what was learnt are shared.
         """
         other = copy.copy(self)
         other.modes = tuple(modes)
         if self.offset is not None:
-            other.offset = dataclasses.replace(self.offset, modes=other.modes)
+            tracked = tuple(IMU_CHANNELS.index(c) for c in other.modes[0].channels)
+            other.offset = dataclasses.replace(self.offset, modes=other.modes, tracked=tracked)
+            other.process = other._padded_process(self._core_process, other.offset)
         return other
 
     def _offset_state(self, sensors: SensorSpec, model: FilterModel) -> None:
         """Append the six offsets to :attr:`process` for untrusted modes (see ChannelOffset)."""
         if model.fault_signature != "untrusted":
             return
-        n, k = self.process.nx, N_IMU
         walk = (model.offset_walk_sigmas * sensors.imu.gyro_sigma_radps) ** 2
         walk_var = walk / sensors.imu.gyro_range_radps**2  # in full scales
-        self.offset = ChannelOffset(self.modes, sensors.imu.ranges, n, walk_var)
-        inner = self.process.f
+        declared = tuple(IMU_CHANNELS.index(c) for c in self.modes[0].channels)
+        self.offset = ChannelOffset(
+            self.modes, sensors.imu.ranges, self.process.nx, walk_var, declared
+        )
+        self._core_process = self.process
+        self.process = self._padded_process(self.process, self.offset)
+
+    def _padded_process(self, core: ProcessModel, offset: ChannelOffset) -> ProcessModel:
+        """``core`` with the offsets' states after its own (:meth:`ChannelOffset.fly`)."""
+        n, k = core.nx, offset.n_states
+        inner = core.f
+        dt_s = self.flown.dt_s
+        walk = offset.walk(dt_s)
 
         def f(t_s: float, x: np.ndarray, u: np.ndarray, v: np.ndarray | None) -> np.ndarray:
             out = np.empty(x.shape)
             out[:n] = inner(t_s, x[:n], u, v)
-            out[n:] = x[n:]  # random walks: their noise is the state noise below
+            offset.fly(x, out, dt_s)  # their noise is the state noise below
             return out
 
         def padded(cov: np.ndarray | None) -> np.ndarray:
             out = np.zeros((n + k, n + k))
             if cov is not None:
                 out[:n, :n] = cov
-            out[range(n, n + k), range(n, n + k)] = walk_var
+            out[range(n, n + k), range(n, n + k)] = walk
             return out
 
-        p = self.process
-        self.process = ProcessModel(
-            f, n + k, p.noise_cov, padded(p.additive_noise_cov), p.angle_idx,
-            padded(p.state_noise_cov), p.consider_idx,
+        return ProcessModel(
+            f, n + k, core.noise_cov, padded(core.additive_noise_cov), core.angle_idx,
+            padded(core.state_noise_cov), core.consider_idx,
         )  # fmt: skip
 
     def _with_offset(self, mean: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``mean``, ``cov`` of the model's states, the offset appended at its prior."""
+        """``mean``, ``cov`` of the model's states, the offsets' states appended at their prior."""
         if self.offset is None:
             return mean, cov
-        n, k = mean.shape[0], N_IMU
+        n = mean.shape[0]
+        prior_mean, prior_var = self.offset.prior()
+        k = len(prior_var)
         full_mean = np.zeros(n + k)
         full_mean[:n] = mean
+        full_mean[n:] = prior_mean
         full_cov = np.zeros((n + k, n + k))
         full_cov[:n, :n] = cov
-        full_cov[range(n, n + k), range(n, n + k)] = OFFSET_PRIOR_VAR
+        full_cov[range(n, n + k), range(n, n + k)] = prior_var
         return full_mean, full_cov
+
+    def moved_states(
+        self, previous: ModelDynamics, means: np.ndarray, covs: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """``means (r, nx)``, ``covs`` of ``previous``'s state laid out as this model's.
+
+        Only a re-base changes the layout: a tracked channel's drift rate and gain stay with
+        it, a channel newly declared gets them at their prior, a released one loses them.
+        """
+        mine, theirs = self.offset, previous.offset
+        if mine is None or theirs is None or mine.tracked == theirs.tracked:
+            return means, covs
+        prior_mean, prior_var = mine.prior()
+        source = list(range(mine.index + N_IMU))
+        for c in mine.tracked:
+            if c in theirs.tracked:
+                source.extend(theirs.tracked_rows(theirs.tracked.index(c)))
+            else:
+                source.extend([-1, -1])
+        src = np.array(source)
+        kept = np.flatnonzero(src >= 0)
+        r, nx = means.shape[0], len(src)
+        out_means = np.zeros((r, nx))
+        out_covs = np.zeros((r, nx, nx))
+        out_means[:, kept] = means[:, src[kept]]
+        out_covs[:, kept[:, None], kept[None, :]] = covs[:, src[kept][:, None], src[kept][None, :]]
+        fresh = np.flatnonzero(src < 0)
+        out_means[:, fresh] = prior_mean[fresh - mine.index]
+        out_covs[:, fresh, fresh] = prior_var[fresh - mine.index]
+        return out_means, out_covs
 
     def _idle_offsets(self, bank: ImmEstimate) -> ImmEstimate:
         """The slots that read no offset hold it at its prior (what mixing seeds others with)."""
@@ -608,6 +653,14 @@ class RealAirModel(FilterModel):
 
 class _RealAirDynamics(ModelDynamics):
     """The real-air model flown: the 30-state model, its gate and its turbulence adapter."""
+
+    def with_modes(self, modes: Sequence[FaultMode]) -> _RealAirDynamics:
+        """:meth:`ModelDynamics.with_modes`, the turbulence adapter scaling the new process."""
+        other = super().with_modes(modes)
+        assert isinstance(other, _RealAirDynamics)
+        if other.adapter is not None and other.process is not self.process:
+            other.adapter = dataclasses.replace(other.adapter, process=other.process)
+        return other
 
     def __init__(
         self,

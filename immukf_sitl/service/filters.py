@@ -322,10 +322,12 @@ class AircraftEstimator(_Bank):
         if self.variant != "imm":
             raise ValueError(f"only the IMM re-bases, not {self.variant!r}")
         modes = bank_modes(declared)
-        return _assemble(
-            self.variant, modes, self.imm.ukf, self.dynamics.with_modes(modes),
-            self.filter_model, self.sensors,
-        )  # fmt: skip
+        dynamics = self.dynamics.with_modes(modes)
+        ukf = self.imm.ukf
+        if dynamics.process is not ukf.process:  # the declared channels' error states
+            ukf = UnscentedKalmanFilter(dynamics.process, ukf.scheme, ukf.noise_form, ukf.compiled)
+            ukf.diagnostics = self.imm.ukf.diagnostics
+        return _assemble(self.variant, modes, ukf, dynamics, self.filter_model, self.sensors)
 
     def carried_over(
         self, estimate: VariantEstimate, previous: AircraftEstimator
@@ -334,7 +336,8 @@ class AircraftEstimator(_Bank):
 
         A mode both banks hold keeps its filter and its probability; a mode new to this bank
         starts from the filter of this bank's base mode (which the previous bank held: a
-        re-base changes the declared set by one channel) at its prior probability.
+        re-base changes the declared set by one channel) at its prior probability. The states
+        move onto this bank's layout (:meth:`ModelDynamics.moved_states`).
         """
         bank = estimate.filter
         held = {mode: j for j, mode in enumerate(previous.modes)}
@@ -349,12 +352,19 @@ class AircraftEstimator(_Bank):
         )
         probs = probs / probs.sum()
         r = len(self.modes)
+        means, covs = self.dynamics.moved_states(
+            previous.dynamics, bank.mode_means[source], bank.mode_covs[source]
+        )
+        mean, cov = self.dynamics.moved_states(previous.dynamics, bank.mean[None], bank.cov[None])
         moved = dataclasses.replace(
             bank,
+            mean=mean[0],
+            cov=cov[0],
+            predicted_means=None,
             mode_probabilities=probs,
             log_mode_probabilities=np.log(probs),
-            mode_means=bank.mode_means[source].copy(),
-            mode_covs=bank.mode_covs[source].copy(),
+            mode_means=means.copy(),
+            mode_covs=covs.copy(),
             log_likelihoods=np.zeros(r),
             innovations=None,
             nis=np.zeros(r),
@@ -400,7 +410,7 @@ class AircraftEstimator(_Bank):
             var = var - width[:, :6]
         offset = self.dynamics.offset
         if offset is not None:  # a newly failed channel: its offset, the rest's disagreement
-            nu, var = offset.residuals(bank.mode_means, bank.mode_covs, nu, var)
+            nu, var = offset.residuals(bank.mode_means, bank.mode_covs, nu, var, estimate.imu)
         return nu, np.maximum(var, np.finfo(float).tiny)
 
     def naming_innovations(self, estimate: VariantEstimate) -> tuple[np.ndarray, np.ndarray] | None:
@@ -418,7 +428,7 @@ class AircraftEstimator(_Bank):
             return None
         raw = bank.innovations[:, :6]
         var = bank.innovation_var[:, :6]
-        return offset.naming_residuals(bank.predicted_means, raw, var, reference)
+        return offset.naming_residuals(bank.predicted_means, raw, var, reference, estimate.imu)
 
     @cached_property
     def _references(self) -> np.ndarray | None:
