@@ -20,8 +20,10 @@ from immukf_sitl.estimation import (
     single_fault_modes,
 )
 from immukf_sitl.estimation.fault_modes import (
+    DRIFT_PRIOR_VAR,
     FAILURE_PRIOR,
     FAILURE_WEIGHT_FLOOR,
+    GAIN_PRIOR_VAR,
     OFFSET_PRIOR_VAR,
     OUTLIER_SHARE,
     STUCK_SIGMAS,
@@ -101,6 +103,109 @@ def test_an_offset_is_read_on_failed_channels_only_and_trusted_ones_rest_at_prio
             else:
                 assert m2[j, row] == 0.0 and c2[j, row, row] == OFFSET_PRIOR_VAR
                 assert not np.any(c2[j, row, :row]) and not np.any(c2[j, :row, row])
+
+
+def test_a_declared_channel_reads_its_gain_and_its_offset_moves_at_its_drift_rate():
+    """The declared p (bank about p): every slot that distrusts p reads ``(1 + g) h + range e``
+    on it, its offset moves by ``dt d`` a step, and the slot that trusts p again ("none") holds
+    ``d`` and ``g`` at their prior; the other channels are read as before."""
+    modes = bank_modes(P)
+    ranges = ImuSpec().ranges
+    p = 3
+    offset = ChannelOffset(modes, ranges, index=3, walk_var=1e-9, tracked=(p,))
+    assert offset.n_states == 8 and offset.tracked_rows(0) == (9, 10)
+    rng = np.random.default_rng(2)
+    x = rng.normal(0.0, 0.1, (11, 7, 5))
+    healthy = rng.normal(0.0, 1.0, (6, 7, 5))
+    added = offset.output(x, healthy)
+    for j, mode in enumerate(modes):
+        for i in range(6):
+            expected = ranges[i] * x[3 + i, j] if mode.bits >> i & 1 else 0.0
+            if i == p and mode.bits >> p & 1:
+                expected = expected + x[10, j] * healthy[p, j]
+            np.testing.assert_allclose(added[i, j], expected)
+    out = np.full(x.shape, np.nan)
+    offset.fly(x, out, 0.01)
+    expected = x[3:11].copy()
+    expected[p] += 0.01 * x[9]
+    np.testing.assert_allclose(out[3:11], expected)
+    assert np.isnan(out[:3]).all()  # the model's own states are the model's to fly
+    walk = offset.walk(0.01)
+    np.testing.assert_allclose(walk[:6], 1e-9)
+    assert walk[6] / DRIFT_PRIOR_VAR == pytest.approx(walk[7] / GAIN_PRIOR_VAR)
+    means = rng.normal(0.0, 0.1, (7, 11))
+    covs = np.tile(np.eye(11) * 0.01, (7, 1, 1))
+    m2, c2 = offset.reset(means, covs)
+    trusting = modes.index(FaultMode(0))
+    for j in range(7):
+        for row, prior in ((9, DRIFT_PRIOR_VAR), (10, GAIN_PRIOR_VAR)):
+            if j == trusting:
+                assert m2[j, row] == 0.0 and c2[j, row, row] == prior
+                assert not np.any(c2[j, row, :row])
+            else:
+                assert m2[j, row] == means[j, row] and c2[j, row, row] == 0.01
+
+
+@pytest.mark.parametrize("name", ["paper", "real-air"])
+def test_a_declaration_adds_the_channels_drift_rate_and_gain_and_a_release_drops_them(name):
+    """nx grows by two per declared channel; the states both layouts hold move with their
+    covariances, a newly declared channel's two start at their prior."""
+    import dataclasses
+
+    from immukf_sitl.service.filters import VariantEstimate
+
+    model = (PaperModel if name == "paper" else RealAirModel)(fault_signature="untrusted")
+    bank = build_estimator(
+        "imm", load_aircraft_params(), NedOrigin(47.4, 8.5, 150.0), filter_model=model
+    )
+    n = bank.imm.ukf.process.nx
+    rng = np.random.default_rng(9)
+    q = FaultMode.from_name("p+q")
+
+    def estimate(b, seed_means):
+        m = b.imm.ukf.process.nx
+        a = rng.normal(0.0, 0.1, (m, m))
+        cov = a @ a.T + np.eye(m)
+        start = b.imm.initial_estimate(0.0, seed_means[0], cov, b.prior_probabilities())
+        filt = dataclasses.replace(start, mode_means=seed_means, mode_covs=np.tile(cov, (7, 1, 1)))
+        return VariantEstimate(0.0, filt, np.zeros(4), np.zeros(6))
+
+    est = estimate(bank, rng.normal(0.0, 0.01, (7, n)))
+    on_p = bank.rebased(P)
+    assert on_p.imm.ukf.process.nx == n + 2
+    moved = on_p.carried_over(est, bank).filter
+    assert moved.mode_means.shape == (7, n + 2) and moved.mean.shape == (n + 2,)
+    kept = [*range(n - 6), n - 6 + 3]  # the model's states and p's offset
+    np.testing.assert_allclose(
+        moved.mode_covs[0][np.ix_(kept, kept)], est.filter.mode_covs[4][np.ix_(kept, kept)]
+    )
+    np.testing.assert_allclose(
+        moved.mode_covs[0, n:, n:], np.diag([DRIFT_PRIOR_VAR, GAIN_PRIOR_VAR])
+    )
+    assert not np.any(moved.mode_covs[0, n:, :n])
+    # a second channel: p's two keep what they learnt, q's start at the prior
+    est2 = estimate(on_p, rng.normal(0.0, 0.01, (7, n + 2)))
+    on_pq = on_p.rebased(q)
+    assert on_pq.dynamics.offset.tracked == (3, 4) and on_pq.imm.ukf.process.nx == n + 4
+    pq_slot = on_p.modes.index(q)
+    moved2 = on_pq.carried_over(est2, on_p).filter
+    kept += [n - 6 + 4, n, n + 1]  # and q's offset, p's drift rate and gain
+    np.testing.assert_allclose(moved2.mode_means[0, kept], est2.filter.mode_means[pq_slot, kept])
+    np.testing.assert_allclose(
+        moved2.mode_covs[0][np.ix_(kept, kept)], est2.filter.mode_covs[pq_slot][np.ix_(kept, kept)]
+    )
+    np.testing.assert_allclose(moved2.mode_means[0, n + 2 :], 0.0)
+    np.testing.assert_allclose(
+        np.diagonal(moved2.mode_covs[0])[n + 2 :], [DRIFT_PRIOR_VAR, GAIN_PRIOR_VAR]
+    )
+    # released again: the state is the model's and six offsets, as before any declaration
+    back = on_p.rebased(None)
+    assert back.imm.ukf.process.nx == n
+    released = back.carried_over(est2, on_p).filter
+    source = est2.filter.mode_means[on_p.modes.index(FaultMode(0))]
+    np.testing.assert_allclose(released.mode_means[0, : n - 6], source[: n - 6])
+    np.testing.assert_allclose(released.mode_means[0, n - 6 :], 0.0)  # all trusted: at prior
+    assert back.imm.ukf.diagnostics is bank.imm.ukf.diagnostics
 
 
 def _evidence(modes):
