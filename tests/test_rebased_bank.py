@@ -124,6 +124,10 @@ def test_a_declared_channel_reads_its_gain_and_its_offset_moves_at_its_drift_rat
             if i == p and mode.bits >> p & 1:
                 expected = expected + x[10, j] * healthy[p, j]
             np.testing.assert_allclose(added[i, j], expected)
+    # an accelerometer's gain is its bias in flight: a declared z reads its offset alone
+    z_offset = ChannelOffset(bank_modes(FaultMode.from_name("z")), ranges, 3, 1e-9, tracked=(2,))
+    plain = ChannelOffset(bank_modes(FaultMode.from_name("z")), ranges, 3, 1e-9)
+    np.testing.assert_array_equal(z_offset.output(x, healthy), plain.output(x[:9]))
     out = np.full(x.shape, np.nan)
     offset.fly(x, out, 0.01)
     expected = x[3:11].copy()

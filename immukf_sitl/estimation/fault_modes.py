@@ -186,6 +186,8 @@ STUCK_SIGMAS = 0.1
 OUTLIER_SHARE = 0.01
 #: the least weight a declared channel is read with: its noise at most 1e6 R
 _READ_FLOOR = 1e-6
+#: the first rate gyro in IMU order (the channels before it are accelerometers)
+_FIRST_GYRO = IMU_CHANNELS.index("p")
 #: prior variance of a declared channel's drift rate, in full scales a second, squared: a 1-sigma
 #: drift crosses the sensor's range in ten minutes (a gyro of 2000 deg/s: 0.058 rad/s a second),
 #: far beyond the drifts of a failing sensor's spec sheet, so that any drift is learnt from its
@@ -219,7 +221,10 @@ class ChannelOffset:
     (:meth:`tracked_rows`). An offset that only walks lags a drift or a gain, and the state
     followed the channel through that lag until the attitude was lost; a bias learns
     ``d = g = 0``. They are a declared channel's alone: a bank with nothing declared has none,
-    so the detection is the offsets' alone.
+    so the detection is the offsets' alone. Only a gyro reads its gain: its rate passes
+    through zero in every turn, where an accelerometer reads about the 1 g it feels, so that
+    its gain is its bias (read, the z accelerometer's gain left its bias to the force
+    correction, and a slot that trusted the biased channel again won).
 
     Parameters
     ----------
@@ -265,6 +270,7 @@ class ChannelOffset:
         channels = np.array(self.tracked, dtype=np.int64)
         rates = self.index + N_IMU + 2 * np.arange(len(channels), dtype=np.int64)
         reads = self.failed[channels] if len(channels) else np.zeros((0, len(self.modes)), bool)
+        reads = reads & (channels >= _FIRST_GYRO)[:, None]  # an accelerometer's gain: its bias
         return channels, rates, rates + 1, reads
 
     @cached_property
