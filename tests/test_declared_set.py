@@ -251,3 +251,74 @@ def test_one_spike_of_a_leading_slot_does_not_declare_its_channel():
         nu = _innovations(rng)
         events += det.update(k * 0.01, _probs(5, 0.99), _imu(rng), SIGMAS, nu, None, ratio, spike)
     assert events == []
+
+
+def _rest(slot: int, nats_per_fix: float, nis: float = 5.0):
+    """Evidence at a GPS fix: ``slot`` ahead of the base by ``nats_per_fix`` on its 5 outputs,
+    the others a little behind; every slot's normalised innovation squared ``nis``."""
+    ratios = np.full(7, -0.2)
+    ratios[0] = 0.0
+    ratios[slot] = nats_per_fix
+    return ratios, np.full(7, nis), 5
+
+
+def _fly_fixes(det, seconds, evidence, rng):
+    """IMU samples at 100 Hz, a fix (and its evidence) once a second."""
+    events = []
+    for k in range(int(seconds * 100)):
+        rest = evidence if k % 100 == 0 else None
+        events += det.update(
+            k * 0.01, _probs(6, 1e-9), _imu(rng), SIGMAS, _innovations(rng), rest=rest
+        )
+    return events
+
+
+def test_the_slow_threshold_is_a_five_percent_chance_over_three_hours_of_six_slots():
+    from immukf_sitl.service.declared_set import _REST_NATS
+
+    # exp(-h) per window (Markov's inequality on a likelihood ratio), 6 slots x 100 Hz x 3 h
+    assert 6 * 100 * 3 * 3600 * math.exp(-_REST_NATS) == pytest.approx(0.05)
+
+
+@pytest.mark.parametrize(("per_fix", "declared"), [(6.2, False), (6.3, True)])
+def test_a_slot_that_predicts_the_fixes_better_over_three_seconds_is_declared(per_fix, declared):
+    """Slot r (6) at its probability floor, ahead of the base at each 1 Hz fix: the three
+    fixes of the window must reach ln(6 x 100 x 3 x 3600 / 0.05) = 18.68 nats."""
+    det = DeclaredSetDetector(DetectorConfig(settle_s=0.0), 0.0)
+    events = _fly_fixes(det, 6.0, _rest(6, per_fix), np.random.default_rng(5))
+    assert [(e.kind, e.mode.name) for e in events] == ([("detected", "r")] if declared else [])
+    if declared:
+        assert det.declared == FaultMode.from_name("r")
+        assert events[0].t_s == pytest.approx(2.0)
+
+
+def test_two_slots_ahead_at_the_fixes_alike_are_not_told_apart():
+    """Slots p and r 30 and 25.5 nats ahead over three fixes, short of the 6.9-nat margin:
+    nothing is declared; once r leads by more, r is."""
+    rng = np.random.default_rng(6)
+    det = DeclaredSetDetector(DetectorConfig(settle_s=0.0), 0.0)
+    tied = _rest(6, 10.0)
+    tied[0][4] = 8.5
+    assert _fly_fixes(det, 5.0, tied, rng) == []
+    ahead = _rest(6, 13.0)
+    ahead[0][4] = 8.5
+    events = _fly_fixes(det, 5.0, ahead, rng)
+    assert [(e.kind, e.mode.name) for e in events] == [("detected", "r")]
+
+
+def test_the_slow_test_waits_for_the_settling():
+    det = DeclaredSetDetector(DetectorConfig(settle_s=2.5), 0.0)
+    events = _fly_fixes(det, 5.0, _rest(6, 30.0), np.random.default_rng(7))
+    assert [(e.kind, e.mode.name, round(e.t_s, 2)) for e in events] == [("detected", "r", 2.5)]
+
+
+def test_a_slot_that_does_not_fit_the_fixes_is_not_declared_slowly():
+    """Slot r 10 nats a fix ahead of the base, but its own innovations at three times their
+    chi-square mean (the 0.999 quantile of two fixes of 5 degrees of freedom, when the
+    evidence passes the threshold, is 2.96 times): its model does not explain the fixes
+    either."""
+    from scipy.stats import chi2
+
+    assert chi2.ppf(0.999, 10) / 10 == pytest.approx(2.96, abs=0.01)
+    det = DeclaredSetDetector(DetectorConfig(settle_s=0.0), 0.0)
+    assert _fly_fixes(det, 6.0, _rest(6, 10.0, nis=15.0), np.random.default_rng(8)) == []

@@ -254,3 +254,40 @@ def test_rescored_likelihood_is_the_gaussian_of_the_widened_covariance():
         assert widened[b] == pytest.approx(want)
         assert scored[b] == pytest.approx(multivariate_normal(np.zeros(5), want).logpdf(nu[b]))
     assert scored[1] == -np.inf  # a filter reset this step stays unlikely
+
+
+def test_rest_ratios_are_the_marginals_of_the_outputs_each_mode_keeps():
+    """Mode ``j`` and mode 0 on the outputs ``j`` keeps, against scipy's multivariate normal."""
+    from scipy.stats import multivariate_normal
+
+    from immukf_sitl.estimation.imm import rest_log_likelihood_ratios
+
+    rng = np.random.default_rng(43)
+    a = rng.normal(size=(4, 8, 8))
+    cov = a @ a.transpose(0, 2, 1) + 0.1 * np.eye(8)
+    nu = rng.normal(size=(4, 8))
+    left_out = np.zeros((4, 6), dtype=bool)
+    left_out[1, 0] = left_out[2, 4] = True  # mode 3 leaves nothing out
+    ratios, nis, dof = rest_log_likelihood_ratios(nu, cov, left_out)
+    assert dof == 7
+    for j, out in ((1, 0), (2, 4)):
+        keep = [i for i in range(8) if i != out]
+
+        def marginal(b, keep=keep):
+            sub = cov[b][np.ix_(keep, keep)]
+            return multivariate_normal(np.zeros(len(keep)), sub).logpdf(nu[b, keep])
+
+        assert ratios[j] == pytest.approx(marginal(j) - marginal(0))
+        sub = cov[j][np.ix_(keep, keep)]
+        assert nis[j] == pytest.approx(nu[j, keep] @ np.linalg.solve(sub, nu[j, keep]))
+    assert ratios[0] == ratios[3] == nis[0] == nis[3] == 0.0
+
+
+def test_rest_left_out_must_leave_the_base_whole_and_the_others_alike():
+    process, _ = oscillator_bank()
+    transition = sticky_transition(3, 0.99)
+    with pytest.raises(ValueError, match="base's leaving nothing out"):
+        ImmEstimator(UnscentedKalmanFilter(process), transition, rest_left_out=np.eye(3, 2) > 0)
+    uneven = np.array([[0, 0], [1, 0], [1, 1]], dtype=bool)
+    with pytest.raises(ValueError, match="leaves as many"):
+        ImmEstimator(UnscentedKalmanFilter(process), transition, rest_left_out=uneven)

@@ -50,6 +50,50 @@ def rescored_log_likelihood(
     return np.where(np.isfinite(log_likelihood), scored, log_likelihood), cov
 
 
+def rest_log_likelihood_ratios(
+    innovation: np.ndarray, innovation_cov: np.ndarray, left_out: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """Each mode's log-likelihood over the outputs it does not leave out, less the first's.
+
+    ``left_out`` ``(r, m)`` flags, per mode, the leading outputs it leaves out; every flagged
+    mode leaves out the same number. Mode ``j`` and mode 0 are both scored (eq. 25) on the
+    Gaussian marginal of the outputs ``j`` keeps, so the two are densities of the same data:
+    where a mode that leaves a channel out predicts the *other* sensors better than the base
+    that reads it, the channel is corrupting the base (a drift the base follows). Returns the
+    ratios ``(r,)``, each mode's normalised innovation squared over the outputs it keeps
+    ``(r,)`` (whether its own model fits them) and how many those are. Modes that leave nothing
+    out score 0 and 0; so does a mode whose covariance does not factor.
+    """
+    r, nz = innovation.shape
+    slots = np.flatnonzero(left_out.any(axis=1))
+    ratios = np.zeros(r)
+    nis = np.zeros(r)
+    if slots.size == 0:
+        return ratios, nis, 0
+    kept = np.ones((slots.size, nz), dtype=bool)
+    kept[:, : left_out.shape[1]] = ~left_out[slots]
+    keep = np.array([np.flatnonzero(row) for row in kept])  # (s, nz - n_out)
+    if keep.shape[1] == 0:
+        return ratios, nis, 0
+    pairs = np.concatenate([slots, np.zeros(slots.size, dtype=np.intp)])  # mode j, then base
+    rows = np.concatenate([keep, keep])
+    cov = innovation_cov[pairs[:, None, None], rows[:, :, None], rows[:, None, :]]
+    nu = innovation[pairs[:, None], rows]
+    try:
+        factor = np.linalg.cholesky(cov)
+    except np.linalg.LinAlgError:
+        return ratios, nis, 0
+    white = np.linalg.solve(factor, nu[:, :, None])[:, :, 0]
+    squared = np.sum(white * white, axis=1)
+    half_log_det = np.sum(np.log(np.diagonal(factor, axis1=1, axis2=2)), axis=1)
+    marginal = -0.5 * squared - half_log_det  # eq. (25); 2 pi cancels in the ratio
+    ratio = marginal[: slots.size] - marginal[slots.size :]
+    finite = np.isfinite(ratio)
+    ratios[slots] = np.where(finite, ratio, 0.0)
+    nis[slots] = np.where(finite, squared[: slots.size], 0.0)
+    return ratios, nis, keep.shape[1]
+
+
 def sticky_transition(n_modes: int, stay_probability: float) -> np.ndarray:
     """Markov matrix with ``stay_probability`` on the diagonal, the rest spread evenly."""
     if not 0.0 < stay_probability <= 1.0:
@@ -98,6 +142,12 @@ class ImmEstimate:
     outliers : ndarray of bool or None, shape (r, 6)
         The IMU samples each mode kept out of its update as outliers of a failed channel's
         learnt offset (:meth:`DeadOrAnyEvidence.outlier_gate`); None without a gate.
+    rest_ratios : ndarray or None, shape (r,)
+        Each mode's log-likelihood ratio to mode 0 over the outputs other than the channels it
+        leaves out (:func:`rest_log_likelihood_ratios`); None where the estimator computes
+        none (no ``rest_left_out``, or a step without an update).
+    rest_nis : ndarray or None, shape (r,)
+        Each mode's normalised innovation squared over those outputs, ``rest_dof`` of them.
     """
 
     t_s: float
@@ -115,6 +165,9 @@ class ImmEstimate:
     failure_weights: np.ndarray | None = None
     predicted_means: np.ndarray | None = None
     outliers: np.ndarray | None = None
+    rest_ratios: np.ndarray | None = None
+    rest_nis: np.ndarray | None = None
+    rest_dof: int = 0
 
     @property
     def most_likely_mode(self) -> int:
@@ -152,6 +205,9 @@ class ImmEstimator:
         The states that keep the floored history (default: all).
     history_slots : ndarray of bool, optional
         ``(r,)``: the modes that keep it (default: all but the first).
+    rest_left_out : ndarray of bool, optional
+        ``(r, m)``: the leading outputs each mode leaves out; with it every updated step also
+        gives each mode's evidence over the other outputs (:attr:`ImmEstimate.rest_ratios`).
     """
 
     def __init__(
@@ -163,6 +219,7 @@ class ImmEstimator:
         history_floor: float = 0.0,
         history_states: slice | None = None,
         history_slots: np.ndarray | None = None,
+        rest_left_out: np.ndarray | None = None,
     ) -> None:
         transition = np.array(transition, dtype=float)
         if transition.ndim != 2 or transition.shape[0] != transition.shape[1]:
@@ -186,6 +243,15 @@ class ImmEstimator:
         if slots.shape != (n_modes,) or slots[0]:
             raise ValueError("history_slots: one flag per mode, the base's False")
         self._history_slots = np.flatnonzero(slots)
+        self._rest_left_out = None
+        if rest_left_out is not None:
+            left_out = np.asarray(rest_left_out, dtype=bool)
+            counts = left_out.sum(axis=1)
+            if left_out.ndim != 2 or left_out.shape[0] != n_modes or counts[0]:
+                raise ValueError("rest_left_out: one row per mode, the base's leaving nothing out")
+            if len(set(counts[counts > 0].tolist())) > 1:
+                raise ValueError("rest_left_out: every mode that leaves outputs out leaves as many")
+            self._rest_left_out = left_out
         self.angle_idx = ukf.process.angle_idx
         self._angle_mask = angle_mask(ukf.process.nx, self.angle_idx)
 
@@ -334,6 +400,10 @@ class ImmEstimator:
                 scored_cov, measurement.z, u, log_likelihood, weights, previous_z,
                 widths,
             )  # fmt: skip
+        rest: tuple[np.ndarray | None, np.ndarray | None, int] = (None, None, 0)
+        if self._rest_left_out is not None and filtered.updated:
+            assert filtered.innovation is not None and scored_cov is not None
+            rest = rest_log_likelihood_ratios(filtered.innovation, scored_cov, self._rest_left_out)
         log_mu = np.empty(r)
         probs = np.empty(r)
         kern.imm_posterior(log_likelihood, log_c, self.probability_floor, log_mu, probs)  # eq. (26)
@@ -360,4 +430,5 @@ class ImmEstimator:
             weights,
             filtered.predicted_mean,
             None if filtered.gated is None else filtered.gated[:, :N_IMU] > 0.0,
+            *rest,
         )

@@ -42,6 +42,19 @@ channel's failure: the mode ``D + c`` is always in the bank.
   its recovery in the probabilities and the offset above. Not named yet, nothing shows life.
   The count decays with time constant ``clear_dwell_s``: life shown long ago says little of
   the sensor now.
+- **Declare slowly** channel ``c`` (while nothing is declared) when, over the GPS fixes of
+  the last ``_REST_WINDOW_S``, slot ``c`` (which leaves the channel out and keeps a history
+  of its own) predicts the fixes better than slot 0 by ``_REST_NATS``, and by
+  ``ln(q / (1 - q))`` more than any other slot (:attr:`ImmEstimate.rest_ratios`), and fits
+  them (its normalised innovations squared over the window within the chi-square quantile
+  ``q``). A slow failure (a drift) is followed by slot 0, whose rate and gust states move
+  with the channel: slot ``c``'s probability stays at its floor, since it pays for the
+  channel's unknown offset at every step, while the attitude and velocity slot 0 takes from
+  the channel show at the fixes. The fix alone, because every slot but ``c`` reads ``c`` as
+  slot 0 does: on the IMU channels a jump of ``c`` favoured whichever slot predicted ``c``
+  most loosely, and slot q, which predicts the accelerometers as well as slot 0 in
+  turbulence, won windows in fault-free flight. The bank then believes the declared set (its
+  base at 0.99).
 - **Cannot isolate**: when slot 0 stays below ``1 - threshold`` for ``dwell_s`` while no other
   slot reaches ``threshold`` (the evidence is split between channels), an ``unisolated`` event
   names the channels in doubt, once until a declaration or until slot 0 recovers.
@@ -60,6 +73,16 @@ from scipy.stats import chi2
 
 from immukf_sitl.estimation.fault_modes import IMU_CHANNELS, N_IMU, FaultMode, bank_modes
 from immukf_sitl.service.detection import DetectionEvent, DetectorConfig, SignatureWindow
+
+#: the slow-evidence test's window: three fixes at the 1 Hz of the campaigns' GPS (a fault
+#: mode's own history is about 1 s, ``history_floor / onset`` steps, so each fix is nearly
+#: fresh evidence); not swept
+_REST_WINDOW_S = 3.0
+#: the slow-evidence test's threshold: a log-likelihood ratio has mean exp of 1 when the base
+#: is right, so one window passes ``h`` nats with probability at most ``exp(-h)`` (Markov's
+#: inequality); over six slots tested at most at 100 Hz for 3 h, a 5 % chance of one false
+#: declaration in all
+_REST_NATS = math.log(6 * 100 * 3 * 3600 / 0.05)
 
 #: spikes (outliers of a channel's learnt offset the base prices at the signature quantile's
 #: odds) that declare it while its slot holds the threshold: the first may be one tail sample,
@@ -126,6 +149,8 @@ class DeclaredSetDetector:
         q = config.signature_quantile
         self._sustained_nats = math.log(q / (1.0 - q))
         self._evidence: deque[np.ndarray] = deque(maxlen=config.signature_window)
+        # (t_s, rest ratios, rest NIS, their degrees of freedom) over the slow test's window
+        self._rest: deque[tuple[float, np.ndarray, np.ndarray, int]] = deque()
         for channel in range(N_IMU):
             if self._bits >> channel & 1:
                 self._start_latch(channel)
@@ -151,6 +176,7 @@ class DeclaredSetDetector:
         self._unisolated_said = False
         self._window.forget_residuals()
         self._evidence.clear()
+        self._rest.clear()
         self._life.pop(channel, None)
         self._failure.pop(channel, None)
         self._zero_offset_since.pop(channel, None)
@@ -198,6 +224,7 @@ class DeclaredSetDetector:
         failure_weights: np.ndarray | None = None,
         log_likelihoods: np.ndarray | None = None,
         outliers: np.ndarray | None = None,
+        rest: tuple[np.ndarray, np.ndarray, int] | None = None,
     ) -> list[DetectionEvent]:
         """Feed the bank's probabilities at ``t_s`` (slot order of :attr:`modes`).
 
@@ -207,7 +234,9 @@ class DeclaredSetDetector:
         believes each channel failed: dead, stuck, offset) the stuck test; ``log_likelihoods``
         ``(7,)`` (this step's, eq. 25; None on a step without an update) the sustained test;
         ``outliers`` ``(7, 6)`` (the samples each slot kept out of its update as outliers of a
-        channel's learnt offset) the spike test.
+        channel's learnt offset) the spike test; ``rest`` (each slot's log-likelihood ratio to
+        slot 0 over the GPS fix, ``(7,)``, its normalised innovation squared
+        over them, ``(7,)``, and how many they are) the slow test.
         Returns the events of this sample: at most one declaration or release, after which
         :attr:`modes` is the re-based bank's.
         """
@@ -225,6 +254,11 @@ class DeclaredSetDetector:
                 spike[1:] = np.diagonal(outliers[1:]) & (
                     self._evidence[-1][1:] >= self._sustained_nats
                 )
+        if rest is not None and rest[2] > 0:
+            ratios, nis, dof = rest
+            self._rest.append((t_s, np.asarray(ratios, dtype=float), np.asarray(nis), dof))
+        while self._rest and self._rest[0][0] <= t_s - _REST_WINDOW_S:
+            self._rest.popleft()
         if imu is not None and imu_sigmas is not None and innovations is not None:
             self._update_life(t_s, np.asarray(imu, dtype=float), imu_sigmas, innovations)
         if outliers is not None:  # an offset of zero between spikes is not a recovery
@@ -277,7 +311,34 @@ class DeclaredSetDetector:
                 self._change(channel)
                 p = float(probabilities[j])
                 return [DetectionEvent("detected", mode, t_s, p, declared_after=self._after())]
+        slow = self._slow_slot()
+        if slow is not None:
+            channel = slow - 1
+            mode = FaultMode(1 << channel)
+            self._change(channel)
+            p = float(probabilities[slow])
+            return [DetectionEvent("detected", mode, t_s, p, declared_after=self._after())]
         return self._unisolated(t_s, probabilities)
+
+    def _slow_slot(self) -> int | None:
+        """The slot whose evidence on the sensors it still reads declares it (module docstring).
+
+        Only while nothing is declared (a re-based bank's slots have no history of their own).
+        """
+        if self._bits or not self._rest:
+            return None
+        sums = np.sum([ratios for _, ratios, _, _ in self._rest], axis=0)
+        nis = np.sum([n for _, _, n, _ in self._rest], axis=0)
+        dof = sum(d for _, _, _, d in self._rest)
+        sums[0] = -math.inf
+        # the slot must fit what it reads: a jump on another channel it still reads is not
+        # its evidence (a slot that predicts that channel loosely would gain on it)
+        sums[nis > chi2.ppf(self.config.signature_quantile, dof)] = -math.inf
+        order = np.argsort(sums)[::-1]
+        best, second = int(order[0]), int(order[1])
+        if sums[best] >= _REST_NATS and sums[best] - sums[second] >= self._sustained_nats:
+            return best
+        return None
 
     def _sustained(self, j: int) -> bool:
         """Whether slot ``j`` out-scored slot 0 over the window without its best sample.

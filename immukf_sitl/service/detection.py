@@ -245,14 +245,15 @@ class FaultDetector:
         failure_weights: np.ndarray | None = None,
         log_likelihoods: np.ndarray | None = None,
         outliers: np.ndarray | None = None,
+        rest: tuple[np.ndarray, np.ndarray, int] | None = None,
     ) -> list[DetectionEvent]:
         """Feed the probabilities at ``t_s``; returns the events this sample caused.
 
         ``imu`` (the six readings) and ``imu_sigmas`` (their noise sigmas) feed the zero test
         and show whether a declared channel is alive; without them a declared fault clears on
         the probabilities alone. ``innovations`` and ``failure_weights`` are unused (the zero
-        test reads the readings themselves), as are ``log_likelihoods`` and ``outliers``; they
-        keep one signature for both detectors.
+        test reads the readings themselves), as are ``log_likelihoods``, ``outliers`` and
+        ``rest``; they keep one signature for both detectors.
         """
         cfg = self.config
         events: list[DetectionEvent] = []

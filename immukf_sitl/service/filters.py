@@ -41,7 +41,7 @@ from immukf_sitl.estimation import (
     fault_mode_noise_var,
     fault_mode_output,
 )
-from immukf_sitl.estimation.fault_modes import reference_slots
+from immukf_sitl.estimation.fault_modes import N_IMU, reference_slots
 from immukf_sitl.estimation.ukf import NoiseForm
 from immukf_sitl.models.aero import AeroModel
 from immukf_sitl.models.augmented import (
@@ -370,6 +370,9 @@ class AircraftEstimator(_Bank):
             nis=np.zeros(r),
             updated=False,
             innovation_var=None,
+            rest_ratios=None,
+            rest_nis=None,
+            rest_dof=0,
         )
         air = estimate.turbulence
         if air is not None:  # a channel that changed state: its spread was its failure's
@@ -584,11 +587,16 @@ def _assemble(
     # zeros and took the lead, and slots without a further channel won at the fixes once the
     # base read a declared drifting gyro (docs/design/detection-and-tuning.md)
     history = 0.0
+    left_out = None
     if len(modes) > 1 and filter_model.fault_signature == "untrusted" and modes[0].bits == 0:
         history = filter_model.history_floor
+        # a mode with a history of its own is also scored against the base on the GPS fix
+        # alone (the slow-evidence test of service/declared_set.py)
+        left_out = np.zeros((len(modes), N_IMU), dtype=bool)
+        left_out[1:] = True
     imm = ImmEstimator(
         ukf, filter_model.transition(modes), floor, dynamics.gate(), history,
-        dynamics.history_states(),
+        dynamics.history_states(), rest_left_out=left_out if history > 0.0 else None,
     )  # fmt: skip
     imu_model, imu_gps_model = aero_measurement_models(
         dynamics.flown, modes, sensors, filter_model.fault_signature, dynamics.offset

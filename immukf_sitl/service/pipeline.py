@@ -531,6 +531,7 @@ class EstimatorPipeline:
         events = self.detector.update(
             t_s, est.mode_probabilities, imu, sigmas, innovations, bank.failure_weights,
             bank.log_likelihoods if bank.updated else None, bank.outliers,
+            None if bank.rest_ratios is None else (bank.rest_ratios, bank.rest_nis, bank.rest_dof),
         )  # fmt: skip
         names = []
         if self._namer.pending:  # the naming residuals only while a declaration waits for them
@@ -555,15 +556,29 @@ class EstimatorPipeline:
         if isinstance(self.detector, DeclaredSetDetector) and any(
             e.kind in ("detected", "cleared") for e in events
         ):
-            self._rebase()
+            self._rebase(declared=any(e.kind == "detected" for e in events))
         return events
 
-    def _rebase(self) -> None:
-        """Move the bank and its estimate onto the detector's declared set."""
+    def _rebase(self, declared: bool) -> None:
+        """Move the bank and its estimate onto the detector's declared set.
+
+        A declaration is a belief: where the evidence that made it is not the probabilities
+        (the slow test), the re-based bank's base starts at 0.99.
+        """
         assert isinstance(self.estimator, AircraftEstimator) and self.estimate is not None
         assert self.detector is not None
         rebased = self.estimator.rebased(self.detector.declared)
-        self.estimate = rebased.carried_over(self.estimate, self.estimator)
+        moved = rebased.carried_over(self.estimate, self.estimator)
+        if declared and moved.filter.mode_probabilities[0] < self.detector.config.threshold:
+            probs = rebased.probabilities_believing(self.detector.declared)
+            bank = moved.filter
+            moved = dataclasses.replace(
+                moved,
+                filter=dataclasses.replace(
+                    bank, mode_probabilities=probs, log_mode_probabilities=np.log(probs)
+                ),
+            )
+        self.estimate = moved
         self.estimator = rebased
         self._sensitivity = None  # of the re-based bank's state
 
