@@ -44,8 +44,10 @@ channel's failure: the mode ``D + c`` is always in the bank.
   the sensor now.
 - **Declare slowly** channel ``c`` (while nothing is declared) when, over the GPS fixes of
   the last ``_REST_WINDOW_S``, slot ``c`` (which leaves the channel out and keeps a history
-  of its own) predicts the fixes better than slot 0 by ``_REST_NATS``, and by
-  ``ln(q / (1 - q))`` more than any other slot (:attr:`ImmEstimate.rest_ratios`), and fits
+  of its own) predicts the fixes better than slot 0 by ``_REST_NATS`` beyond what the other
+  slots typically gained at the same fixes (their median, when positive: a fix that most
+  slots predict better says that slot 0's model erred), and by ``ln(q / (1 - q))`` more than
+  any other slot (:attr:`ImmEstimate.rest_ratios`), and fits
   them (its normalised innovations squared over the window within the chi-square quantile
   ``q``). A slow failure (a drift) is followed by slot 0, whose rate and gust states move
   with the channel: slot ``c``'s probability stays at its floor, since it pays for the
@@ -113,6 +115,22 @@ def shows_life(failure: NamedFailure, reading: float, noise_sigma: float, sigmas
         held = failure.size if failure.size is not None else math.nan
         return bool(abs(reading - held) > sigmas * noise_sigma)  # NaN held: no
     return True
+
+
+def _beyond_the_others(ratios: np.ndarray) -> np.ndarray:
+    """Each slot's ratio to slot 0 less what the other fault slots typically gained at once.
+
+    A failed channel corrupts every slot that reads it, as it does slot 0, so the slot that
+    leaves it out is ahead alone; a fix that most slots predict better than slot 0 says that
+    slot 0's model erred (a turn in moderate air). The reference is the median of the other
+    slots' ratios, when positive. Slot 0 keeps 0.
+    """
+    ratios = np.asarray(ratios, dtype=float)
+    out = np.zeros_like(ratios)
+    for j in range(1, len(ratios)):
+        others = np.delete(ratios[1:], j - 1)
+        out[j] = ratios[j] - max(float(np.median(others)), 0.0)
+    return out
 
 
 class DeclaredSetDetector:
@@ -256,7 +274,7 @@ class DeclaredSetDetector:
                 )
         if rest is not None and rest[2] > 0:
             ratios, nis, dof = rest
-            self._rest.append((t_s, np.asarray(ratios, dtype=float), np.asarray(nis), dof))
+            self._rest.append((t_s, _beyond_the_others(ratios), np.asarray(nis), dof))
         while self._rest and self._rest[0][0] <= t_s - _REST_WINDOW_S:
             self._rest.popleft()
         if imu is not None and imu_sigmas is not None and innovations is not None:
