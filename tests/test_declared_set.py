@@ -290,6 +290,9 @@ def test_a_slot_that_predicts_the_fixes_better_over_three_seconds_is_declared(pe
     if declared:
         assert det.declared == FaultMode.from_name("r")
         assert events[0].t_s == pytest.approx(2.0)
+        # what chance leaves: at most exp(-18.9) that the window passed with r healthy (the
+        # others' median is below 0, so nothing is taken off)
+        assert events[0].probability == pytest.approx(-math.expm1(-3 * per_fix), abs=1e-12)
 
 
 def test_two_slots_ahead_at_the_fixes_alike_are_not_told_apart():

@@ -45,18 +45,17 @@ channel's failure: the mode ``D + c`` is always in the bank.
 - **Declare slowly** channel ``c`` (while nothing is declared) when, over the GPS fixes of
   the last ``_REST_WINDOW_S``, slot ``c`` (which leaves the channel out and keeps a history
   of its own) predicts the fixes better than slot 0 by ``_REST_NATS`` beyond what the other
-  slots typically gained at the same fixes (their median, when positive: a fix that most
-  slots predict better says that slot 0's model erred), and by ``ln(q / (1 - q))`` more than
-  any other slot (:attr:`ImmEstimate.rest_ratios`), and fits
-  them (its normalised innovations squared over the window within the chi-square quantile
-  ``q``). A slow failure (a drift) is followed by slot 0, whose rate and gust states move
-  with the channel: slot ``c``'s probability stays at its floor, since it pays for the
-  channel's unknown offset at every step, while the attitude and velocity slot 0 takes from
-  the channel show at the fixes. The fix alone, because every slot but ``c`` reads ``c`` as
-  slot 0 does: on the IMU channels a jump of ``c`` favoured whichever slot predicted ``c``
-  most loosely, and slot q, which predicts the accelerometers as well as slot 0 in
-  turbulence, won windows in fault-free flight. The bank then believes the declared set (its
-  base at 0.99).
+  slots typically gained at the same fixes, by ``ln(q / (1 - q))`` more than any other slot,
+  and fits them itself (its normalised innovations squared within the chi-square quantile
+  ``q``; :attr:`ImmEstimate.rest_ratios`). A slow failure (a drift) is followed by slot 0,
+  whose rate and gust states move with the channel: slot ``c``'s probability stays at its
+  floor, since it pays for the channel's unknown offset at every step, while the attitude and
+  velocity slot 0 took from the channel show at the fixes. The fix alone: every slot but
+  ``c`` reads ``c`` as slot 0 does, and on the IMU channels a jump of ``c`` favoured the slot
+  that predicted ``c`` most loosely. Beyond the others (their median, when positive): a
+  failed channel leaves one slot ahead alone, while a fix that most slots predict better says
+  that slot 0's model erred (a turn in moderate air). The event's probability is
+  ``1 - exp(-evidence)``, and the re-based bank believes the declared set (its base at 0.99).
 - **Cannot isolate**: when slot 0 stays below ``1 - threshold`` for ``dwell_s`` while no other
   slot reaches ``threshold`` (the evidence is split between channels), an ``unisolated`` event
   names the channels in doubt, once until a declaration or until slot 0 recovers.
@@ -331,17 +330,18 @@ class DeclaredSetDetector:
                 return [DetectionEvent("detected", mode, t_s, p, declared_after=self._after())]
         slow = self._slow_slot()
         if slow is not None:
-            channel = slow - 1
-            mode = FaultMode(1 << channel)
-            self._change(channel)
-            p = float(probabilities[slow])
+            j, nats = slow
+            mode = FaultMode(1 << (j - 1))
+            self._change(j - 1)
+            p = -math.expm1(-nats)  # the window passes by chance with at most exp(-nats)
             return [DetectionEvent("detected", mode, t_s, p, declared_after=self._after())]
         return self._unisolated(t_s, probabilities)
 
-    def _slow_slot(self) -> int | None:
-        """The slot whose evidence on the sensors it still reads declares it (module docstring).
+    def _slow_slot(self) -> tuple[int, float] | None:
+        """The slot its evidence at the GPS fixes declares, and that evidence in nats.
 
-        Only while nothing is declared (a re-based bank's slots have no history of their own).
+        Only while nothing is declared (a re-based bank's slots have no history of their own);
+        the module docstring says the rule.
         """
         if self._bits or not self._rest:
             return None
@@ -349,13 +349,12 @@ class DeclaredSetDetector:
         nis = np.sum([n for _, _, n, _ in self._rest], axis=0)
         dof = sum(d for _, _, _, d in self._rest)
         sums[0] = -math.inf
-        # the slot must fit what it reads: a jump on another channel it still reads is not
-        # its evidence (a slot that predicts that channel loosely would gain on it)
+        # the slot must fit the fixes itself, not only less badly than slot 0
         sums[nis > chi2.ppf(self.config.signature_quantile, dof)] = -math.inf
         order = np.argsort(sums)[::-1]
         best, second = int(order[0]), int(order[1])
         if sums[best] >= _REST_NATS and sums[best] - sums[second] >= self._sustained_nats:
-            return best
+            return best, float(sums[best])
         return None
 
     def _sustained(self, j: int) -> bool:
