@@ -338,3 +338,18 @@ def test_a_fix_most_slots_predict_better_than_the_base_is_the_base_s_error():
     alone = _rest(6, 12.0)
     events = _fly_fixes(det, 6.0, alone, np.random.default_rng(9))
     assert [(e.kind, e.mode.name) for e in events] == [("detected", "r")]
+
+
+def test_a_slot_the_probabilities_already_lead_with_is_left_to_their_tests():
+    """Slot r at 0.99 with 30 nats a fix at the fixes and no signature: the slow test leaves it
+    to the probabilities' tests (whose dwell lets it learn its offset), and nothing is
+    declared."""
+    rng = np.random.default_rng(10)
+    det = DeclaredSetDetector(DetectorConfig(settle_s=0.0), 0.0)
+    events = []
+    for k in range(500):
+        rest = _rest(6, 30.0) if k % 100 == 0 else None
+        events += det.update(
+            k * 0.01, _probs(6, 0.99), _imu(rng), SIGMAS, _innovations(rng), rest=rest
+        )
+    assert events == []

@@ -328,7 +328,7 @@ class DeclaredSetDetector:
                 self._change(channel)
                 p = float(probabilities[j])
                 return [DetectionEvent("detected", mode, t_s, p, declared_after=self._after())]
-        slow = self._slow_slot()
+        slow = self._slow_slot(probabilities)
         if slow is not None:
             j, nats = slow
             mode = FaultMode(1 << (j - 1))
@@ -337,11 +337,15 @@ class DeclaredSetDetector:
             return [DetectionEvent("detected", mode, t_s, p, declared_after=self._after())]
         return self._unisolated(t_s, probabilities)
 
-    def _slow_slot(self) -> tuple[int, float] | None:
+    def _slow_slot(self, probabilities: np.ndarray) -> tuple[int, float] | None:
         """The slot its evidence at the GPS fixes declares, and that evidence in nats.
 
-        Only while nothing is declared (a re-based bank's slots have no history of their own);
-        the module docstring says the rule.
+        Only while nothing is declared (a re-based bank's slots have no history of their own),
+        and only for slots below the threshold: where the probabilities see the failure, their
+        tests decide once the slot has learnt its channel's offset over the dwell (declared at
+        the fix that first put it in the lead, a p drift's slot was re-based with its offset
+        unlearnt, the slot that trusted p again won within 0.1 s, and five channels followed).
+        The module docstring says the rule.
         """
         if self._bits or not self._rest:
             return None
@@ -349,6 +353,7 @@ class DeclaredSetDetector:
         nis = np.sum([n for _, _, n, _ in self._rest], axis=0)
         dof = sum(d for _, _, _, d in self._rest)
         sums[0] = -math.inf
+        sums[np.asarray(probabilities) >= self.config.threshold] = -math.inf
         # the slot must fit the fixes itself, not only less badly than slot 0
         sums[nis > chi2.ppf(self.config.signature_quantile, dof)] = -math.inf
         order = np.argsort(sums)[::-1]
