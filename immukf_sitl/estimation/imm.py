@@ -252,6 +252,10 @@ class ImmEstimator:
             if len(set(counts[counts > 0].tolist())) > 1:
                 raise ValueError("rest_left_out: every mode that leaves outputs out leaves as many")
             self._rest_left_out = left_out
+        # a step with no more outputs than every scored mode leaves out scores nothing
+        self._rest_from = 0
+        if self._rest_left_out is not None and self._rest_left_out[1:].all():
+            self._rest_from = self._rest_left_out.shape[1]
         self.angle_idx = ukf.process.angle_idx
         self._angle_mask = angle_mask(ukf.process.nx, self.angle_idx)
 
@@ -401,8 +405,13 @@ class ImmEstimator:
                 widths,
             )  # fmt: skip
         rest: tuple[np.ndarray | None, np.ndarray | None, int] = (None, None, 0)
-        if self._rest_left_out is not None and filtered.updated:
-            assert filtered.innovation is not None and scored_cov is not None
+        if (
+            self._rest_left_out is not None
+            and filtered.updated
+            and filtered.innovation is not None
+            and filtered.innovation.shape[1] > self._rest_from
+        ):
+            assert scored_cov is not None
             rest = rest_log_likelihood_ratios(filtered.innovation, scored_cov, self._rest_left_out)
         log_mu = np.empty(r)
         probs = np.empty(r)
