@@ -340,16 +340,18 @@ def test_a_fix_most_slots_predict_better_than_the_base_is_the_base_s_error():
     assert [(e.kind, e.mode.name) for e in events] == [("detected", "r")]
 
 
-def test_a_slot_the_probabilities_already_lead_with_is_left_to_their_tests():
-    """Slot r at 0.99 with 30 nats a fix at the fixes and no signature: the slow test leaves it
-    to the probabilities' tests (whose dwell lets it learn its offset), and nothing is
-    declared."""
+@pytest.mark.parametrize("leader", [6, 4])
+def test_while_a_slot_holds_the_threshold_the_probabilities_tests_decide(leader):
+    """Slot r 30 nats a fix ahead at the fixes, and slot ``leader`` (r itself, or p) at 0.99
+    with no signature: the slow test leaves the decision to the probabilities' tests (whose
+    dwell lets the slot learn its offset), and nothing is declared, neither the leader nor
+    r in its place."""
     rng = np.random.default_rng(10)
     det = DeclaredSetDetector(DetectorConfig(settle_s=0.0), 0.0)
     events = []
     for k in range(500):
         rest = _rest(6, 30.0) if k % 100 == 0 else None
         events += det.update(
-            k * 0.01, _probs(6, 0.99), _imu(rng), SIGMAS, _innovations(rng), rest=rest
+            k * 0.01, _probs(leader, 0.99), _imu(rng), SIGMAS, _innovations(rng), rest=rest
         )
     assert events == []

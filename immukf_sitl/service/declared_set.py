@@ -341,19 +341,19 @@ class DeclaredSetDetector:
         """The slot its evidence at the GPS fixes declares, and that evidence in nats.
 
         Only while nothing is declared (a re-based bank's slots have no history of their own),
-        and only for slots below the threshold: where the probabilities see the failure, their
-        tests decide once the slot has learnt its channel's offset over the dwell (declared at
-        the fix that first put it in the lead, a p drift's slot was re-based with its offset
-        unlearnt, the slot that trusted p again won within 0.1 s, and five channels followed).
-        The module docstring says the rule.
+        and only while no slot holds the threshold: where the probabilities see the failure,
+        their tests decide once the slot has learnt its channel's offset over the dwell
+        (declared at the fix that first put it in the lead, a p drift's slot was re-based with
+        its offset unlearnt, the slot that trusted p again won within 0.1 s, and five channels
+        followed; with only that slot left out, the runner-up was declared slowly in its
+        place). The module docstring says the rule.
         """
-        if self._bits or not self._rest:
+        if self._bits or not self._rest or np.max(probabilities[1:]) >= self.config.threshold:
             return None
         sums = np.sum([ratios for _, ratios, _, _ in self._rest], axis=0)
         nis = np.sum([n for _, _, n, _ in self._rest], axis=0)
         dof = sum(d for _, _, _, d in self._rest)
         sums[0] = -math.inf
-        sums[np.asarray(probabilities) >= self.config.threshold] = -math.inf
         # the slot must fit the fixes itself, not only less badly than slot 0
         sums[nis > chi2.ppf(self.config.signature_quantile, dof)] = -math.inf
         order = np.argsort(sums)[::-1]
