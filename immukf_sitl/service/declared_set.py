@@ -65,6 +65,7 @@ Nothing is declared during the first ``settle_s`` after the estimator starts.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections import deque
 from dataclasses import dataclass
@@ -114,6 +115,12 @@ def shows_life(failure: NamedFailure, reading: float, noise_sigma: float, sigmas
         held = failure.size if failure.size is not None else math.nan
         return bool(abs(reading - held) > sigmas * noise_sigma)  # NaN held: no
     return True
+
+
+@functools.lru_cache(maxsize=64)
+def _chi2_quantile(q: float, dof: int) -> float:
+    """The chi-square quantile, kept: the slow test asks it at every sample for a few dofs."""
+    return float(chi2.ppf(q, dof))
 
 
 def _beyond_the_others(ratios: np.ndarray) -> np.ndarray:
@@ -355,7 +362,7 @@ class DeclaredSetDetector:
         dof = sum(d for _, _, _, d in self._rest)
         sums[0] = -math.inf
         # the slot must fit the fixes itself, not only less badly than slot 0
-        sums[nis > chi2.ppf(self.config.signature_quantile, dof)] = -math.inf
+        sums[nis > _chi2_quantile(self.config.signature_quantile, dof)] = -math.inf
         order = np.argsort(sums)[::-1]
         best, second = int(order[0]), int(order[1])
         if sums[best] >= _REST_NATS and sums[best] - sums[second] >= self._sustained_nats:
