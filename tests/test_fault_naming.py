@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.stats import norm
 
-from immukf_sitl.service.fault_naming import FaultNamer, _spikes, classify_failure
+from immukf_sitl.service.fault_naming import FaultNamer, _spikes, classify_failure, revisit_bias
 
 SIGMA = 0.00227  # the gyro's noise (rad/s)
 PRED_SIGMA = 0.002  # the declared mode's prediction error of the channel
@@ -148,6 +148,64 @@ def test_the_spike_mixture_fit_reaches_the_likelihood_maximum_of_a_grid_search()
     assert size == pytest.approx(0.03, rel=0.3)
 
 
+def _slow_flight(rng, seconds):
+    """:func:`_flight` over ``seconds``, the prediction 0.02 rad/s good (a base in light air)."""
+    n = int(round(100 * seconds))
+    t = 30.0 + 0.01 * np.arange(n)
+    truth = 0.12 + 0.1 * np.sin(2.0 * np.pi * 0.7 * (t - 30.0))
+    h = truth + 0.02 * rng.standard_normal(n)
+    return t, truth, h, truth + SIGMA * rng.standard_normal(n), np.full(n, SIGMA**2 + 0.02**2)
+
+
+def test_a_slow_drift_named_a_bias_is_named_a_drift_at_its_second_look():
+    # 0.03 rad/s/s, declared 3 s after its onset: 0.03 rad/s in the first second, under the
+    # drift rule's 3 prediction sigmas (0.06), so a bias; over 5 s its ramp is 0.15 rad/s
+    for seed in range(5):
+        rng = np.random.default_rng(20 + seed)
+        t, truth, h, healthy, s2 = _slow_flight(rng, 5.0)
+        z = healthy + 0.03 * (t - 27.0)
+        first = classify_failure(t[:100], z[:100], h[:100], s2[:100], SIGMA)
+        assert first.kind == "bias", (seed, first)
+        again = revisit_bias(t, z, h, s2, SIGMA)
+        assert again is not None and again.kind == "drift", (seed, again)
+        assert again.size == pytest.approx(0.03, rel=0.2), (seed, again)
+
+
+def test_a_bias_whose_prediction_is_pulled_toward_the_reading_stays_a_bias():
+    # the base's prediction of the declared channel creeps toward its reading (time constant
+    # 3 s): the residual's slope is steep but shrinks it toward zero, which no drift does;
+    # a bias seen by a settled prediction has no ramp at all
+    for seed in range(5):
+        rng = np.random.default_rng(30 + seed)
+        t, truth, h, healthy, s2 = _slow_flight(rng, 5.0)
+        pulled = h + 0.3 * (1.0 - np.exp(-(t - t[0]) / 3.0))
+        assert revisit_bias(t, healthy + 0.3, pulled, s2, SIGMA) is None, seed
+        assert revisit_bias(t, healthy + 0.3, h, s2, SIGMA) is None, seed
+        assert revisit_bias(t, healthy - 0.3, h - (pulled - h), s2, SIGMA) is None, seed
+
+
+def test_the_namer_names_a_slow_drift_twice_and_a_bias_once():
+    rng = np.random.default_rng(5)
+    t, truth, h, healthy, s2 = _slow_flight(rng, 6.0)
+    names = {}
+    for kind, fault in (("bias", 0.3 + 0.0 * t), ("drift", 0.03 * (t - 27.0))):
+        namer = FaultNamer(np.array([0.0245] * 3 + [SIGMA] * 3), second_look_s=5.0)
+        namer.declared(0, 3, t[0])
+        nu = np.zeros((7, 6))
+        var = np.full((7, 6), s2[0])
+        got = []
+        for k in range(t.size):
+            imu = np.zeros(6)
+            imu[3] = healthy[k] + fault[k]
+            nu[0, 3] = imu[3] - h[k]
+            got += [(k, c, n.kind) for c, n in namer.observe(t[k], imu, nu, var)]
+        names[kind] = got
+        assert not namer.pending
+    assert names == {"bias": [(100, 3, "bias")], "drift": [(100, 3, "bias"), (500, 3, "drift")]}
+
+
 def test_too_few_samples_is_an_error():
     with pytest.raises(ValueError, match="at least 3 samples"):
         classify_failure(np.zeros(2), np.zeros(2), np.zeros(2), np.ones(2), SIGMA)
+    with pytest.raises(ValueError, match="at least 3 samples"):
+        revisit_bias(np.zeros(2), np.zeros(2), np.zeros(2), np.ones(2), SIGMA)

@@ -28,6 +28,13 @@ The window stays one second. Over longer ones the base filter's prediction of th
 channel moves toward its reading (on the tuning draw, 10 s after an x-accelerometer gain of
 0.57 was declared, the prediction read what the faulty channel did), so the residual grows a
 slope that is not the fault's, and gains and biases were named drifts.
+
+A failure named a bias is looked at again :data:`SECOND_LOOK_S` after its declaration
+(:func:`revisit_bias`): a drift slow enough to pass for a bias in the first second has moved
+its channel further by then. The pull of the prediction toward the reading only ever shrinks
+the residual, so a residual that keeps growing away from zero, by more than the drift rule's
+sigmas and better than a constant explains it, is the fault's own ramp: the failure is named
+again, a drift with the slope of the whole window.
 """
 
 from __future__ import annotations
@@ -41,9 +48,11 @@ from scipy.stats import chi2
 
 __all__ = [
     "NAMING_WINDOW_S",
+    "SECOND_LOOK_S",
     "FailureName",
     "FaultNamer",
     "classify_failure",
+    "revisit_bias",
 ]
 
 #: how long after a declaration the readings are gathered before the failure is named (s)
@@ -54,6 +63,8 @@ ZERO_QUANTILE = 0.999
 STUCK_SPREAD_SIGMAS = 0.1
 #: a drift moves its channel by more than this many sigmas of the prediction over the window
 DRIFT_SIGMAS = 3.0
+#: how long after a declaration a failure named a bias is looked at again for a drift (s)
+SECOND_LOOK_S = 5.0
 #: expectation-maximisation steps of the spike mixture's fit (it settles in a few dozen)
 _SPIKE_EM_STEPS = 60
 
@@ -117,11 +128,44 @@ def _bias(e: np.ndarray, s2: np.ndarray) -> tuple[float, int, str, float]:
     return _gaussian(e, b, s2), 1, "bias", b
 
 
-def _drift(t: np.ndarray, e: np.ndarray, s2: np.ndarray) -> tuple[float, int, str, float]:
+def _line(t: np.ndarray, e: np.ndarray, s2: np.ndarray) -> tuple[np.ndarray, float, float]:
+    """The weighted straight line through ``e``: its values, its value at the mean time, slope."""
     w = 1.0 / s2
     basis = np.column_stack([np.ones_like(t), t - t.mean()])
     coef = np.linalg.lstsq(basis * np.sqrt(w)[:, None], e * np.sqrt(w), rcond=None)[0]
-    return _gaussian(e, basis @ coef, s2), 2, "drift", float(coef[1])
+    return basis @ coef, float(coef[0]), float(coef[1])
+
+
+def _drift(t: np.ndarray, e: np.ndarray, s2: np.ndarray) -> tuple[float, int, str, float]:
+    fitted, _, slope = _line(t, e, s2)
+    return _gaussian(e, fitted, s2), 2, "drift", slope
+
+
+def revisit_bias(
+    t_s: np.ndarray, z: np.ndarray, h: np.ndarray, s2: np.ndarray, noise_sigma: float
+) -> FailureName | None:
+    """A drift, if the readings since a failure named a bias was declared show one; else None.
+
+    The arguments are :func:`classify_failure`'s, over the :data:`SECOND_LOOK_S` after the
+    declaration. The straight line through the residual ``e = z - h`` names a drift when its
+    ramp moves the channel by more than :data:`DRIFT_SIGMAS` prediction sigmas, it moves away
+    from zero (the slope has the sign of the line's mean: the prediction's pull toward the
+    reading only shrinks the residual of a bias) and the Bayesian information criterion
+    prefers it to a constant.
+    """
+    t, z, h, s2 = (np.asarray(a, dtype=float) for a in (t_s, z, h, s2))
+    n = z.size
+    if n < 3:
+        raise ValueError(f"revisit_bias: expected at least 3 samples, got {n}")
+    e = z - h
+    fitted, mean, slope = _line(t, e, s2)
+    prediction_sigma = math.sqrt(max(float(np.mean(s2)) - noise_sigma**2, 0.0))
+    if abs(slope) * float(t[-1] - t[0]) <= DRIFT_SIGMAS * prediction_sigma or mean * slope <= 0.0:
+        return None
+    bias = _bias(e, s2)
+    if _gaussian(e, fitted, s2) - bias[0] <= 0.5 * math.log(n):  # one more parameter's price
+        return None
+    return FailureName("drift", slope)
 
 
 def _scale(e: np.ndarray, h: np.ndarray, s2: np.ndarray) -> tuple[float, int, str, float]:
@@ -165,7 +209,9 @@ class FaultNamer:
     """Gathers each step's readings and predictions; names each declaration once its window is in.
 
     Every declared channel is named on its own (a second failure declared within the first's
-    window does not lose the first's name).
+    window does not lose the first's name). A failure named a bias keeps being gathered until
+    ``second_look_s`` after its declaration, and is named again if :func:`revisit_bias` finds
+    a drift.
 
     Parameters
     ----------
@@ -173,13 +219,22 @@ class FaultNamer:
         The IMU channels' white-noise sigmas.
     window_s : float
         How long after a declaration to gather (:data:`NAMING_WINDOW_S`).
+    second_look_s : float
+        When a bias is looked at again (:data:`SECOND_LOOK_S`); at most ``window_s``: never.
     """
 
-    def __init__(self, noise_sigmas: np.ndarray, window_s: float = NAMING_WINDOW_S) -> None:
+    def __init__(
+        self,
+        noise_sigmas: np.ndarray,
+        window_s: float = NAMING_WINDOW_S,
+        second_look_s: float = SECOND_LOOK_S,
+    ) -> None:
         self.noise_sigmas = np.asarray(noise_sigmas, dtype=float)
         self.window_s = window_s
+        self.second_look_s = second_look_s
         self._pending: dict[int, tuple[int, float]] = {}  # channel -> mode slot, declared at
         self._samples: dict[int, list[tuple[float, float, float, float]]] = {}
+        self._named_bias: set[int] = set()  # channels waiting for their second look
 
     @property
     def pending(self) -> bool:
@@ -196,14 +251,16 @@ class FaultNamer:
         for c in list(self._pending) if channel is None else [channel]:
             self._pending.pop(c, None)
             self._samples.pop(c, None)
+            self._named_bias.discard(c)
 
     def observe(
         self, t_s: float, imu: np.ndarray, innovations: np.ndarray, variances: np.ndarray
     ) -> list[tuple[int, FailureName]]:
         """Feed one step; returns ``(channel, name)`` of each failure whose window is full.
 
-        A sample whose reading, prediction or variance is not a finite number (a variance not
-        positive) says nothing of the failure and is left out.
+        A bias found a drift at its second look is returned again, named a drift. A sample
+        whose reading, prediction or variance is not a finite number (a variance not positive)
+        says nothing of the failure and is left out.
         """
         out = []
         for i, (j, since) in list(self._pending.items()):
@@ -214,9 +271,22 @@ class FaultNamer:
                 continue
             samples = self._samples[i]
             samples.append((t_s, z, h, s2))
-            if t_s - since < self.window_s - 1e-9 or len(samples) < 3:
+            looking_again = i in self._named_bias
+            due = self.second_look_s if looking_again else self.window_s
+            if t_s - since < due - 1e-9 or len(samples) < 3:
                 continue
             t, zs, hs, s2 = (np.array(c) for c in zip(*samples, strict=True))
-            self.cancel(i)
-            out.append((i, classify_failure(t, zs, hs, s2, float(self.noise_sigmas[i]))))
+            sigma = float(self.noise_sigmas[i])
+            if looking_again:
+                self.cancel(i)
+                drift = revisit_bias(t, zs, hs, s2, sigma)
+                if drift is not None:
+                    out.append((i, drift))
+                continue
+            name = classify_failure(t, zs, hs, s2, sigma)
+            out.append((i, name))
+            if name.kind == "bias" and self.second_look_s > self.window_s:
+                self._named_bias.add(i)
+            else:
+                self.cancel(i)
         return out
