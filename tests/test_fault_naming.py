@@ -174,7 +174,8 @@ def test_a_slow_drift_named_a_bias_is_named_a_drift_at_its_second_look():
 def test_a_bias_whose_prediction_is_pulled_toward_the_reading_stays_a_bias():
     # the base's prediction of the declared channel creeps toward its reading (time constant
     # 3 s): the residual's slope is steep but shrinks it toward zero, which no drift does;
-    # a bias seen by a settled prediction has no ramp at all
+    # a bias seen by a settled prediction has no ramp at all; the aircraft manoeuvres, and
+    # no gain explains either
     for seed in range(5):
         rng = np.random.default_rng(30 + seed)
         t, truth, h, healthy, s2 = _slow_flight(rng, 5.0)
@@ -182,6 +183,21 @@ def test_a_bias_whose_prediction_is_pulled_toward_the_reading_stays_a_bias():
         assert revisit_bias(t, healthy + 0.3, pulled, s2, SIGMA) is None, seed
         assert revisit_bias(t, healthy + 0.3, h, s2, SIGMA) is None, seed
         assert revisit_bias(t, healthy - 0.3, h - (pulled - h), s2, SIGMA) is None, seed
+
+
+def test_a_gain_on_a_channel_that_held_still_is_named_a_gain_once_it_moves():
+    # a gain of 0.45 on a rate that holds 0.12 rad/s for the first second reads as a bias of
+    # -0.066 there (either explains it); once the aircraft manoeuvres the residual follows
+    # (g - 1) h, which no constant and no ramp explains
+    for seed in range(5):
+        rng = np.random.default_rng(40 + seed)
+        t, _, _, _, s2 = _slow_flight(rng, 5.0)
+        truth = 0.12 + 0.15 * np.sin(2.0 * np.pi * 0.4 * np.maximum(t - 31.0, 0.0))
+        h = truth + PRED_SIGMA * rng.standard_normal(t.size)
+        z = 0.45 * (truth + SIGMA * rng.standard_normal(t.size))
+        again = revisit_bias(t, z, h, s2, SIGMA)
+        assert again is not None and again.kind == "scale", (seed, again)
+        assert again.size == pytest.approx(0.45, rel=0.2), (seed, again)
 
 
 def test_the_namer_names_a_slow_drift_twice_and_a_bias_once():

@@ -31,10 +31,11 @@ slope that is not the fault's, and gains and biases were named drifts.
 
 A failure named a bias is looked at again :data:`SECOND_LOOK_S` after its declaration
 (:func:`revisit_bias`): a drift slow enough to pass for a bias in the first second has moved
-its channel further by then. The pull of the prediction toward the reading only ever shrinks
-the residual, so a residual that keeps growing away from zero, by more than the drift rule's
-sigmas and better than a constant explains it, is the fault's own ramp: the failure is named
-again, a drift with the slope of the whole window.
+its channel further by then, and a gain has seen its channel's true value move. The pull of
+the prediction toward the reading only ever shrinks the residual, so a residual that keeps
+growing away from zero, by more than the drift rule's sigmas, is the fault's own ramp. The
+failure is named again, a drift or a gain, where that explains the whole window better than
+the bias.
 """
 
 from __future__ import annotations
@@ -144,28 +145,28 @@ def _drift(t: np.ndarray, e: np.ndarray, s2: np.ndarray) -> tuple[float, int, st
 def revisit_bias(
     t_s: np.ndarray, z: np.ndarray, h: np.ndarray, s2: np.ndarray, noise_sigma: float
 ) -> FailureName | None:
-    """A drift, if the readings since a failure named a bias was declared show one; else None.
+    """A drift or a gain, if the readings since a failure named a bias show one; else None.
 
     The arguments are :func:`classify_failure`'s, over the :data:`SECOND_LOOK_S` after the
-    declaration. The straight line through the residual ``e = z - h`` names a drift when its
-    ramp moves the channel by more than :data:`DRIFT_SIGMAS` prediction sigmas, it moves away
-    from zero (the slope has the sign of the line's mean: the prediction's pull toward the
-    reading only shrinks the residual of a bias) and the Bayesian information criterion
-    prefers it to a constant.
+    declaration. The residual ``e = z - h`` is explained by a bias, a gain (``e = (g - 1) h``,
+    which the first second cannot tell from a bias while the true value holds still) and a
+    drift, and the best by the Bayesian information criterion names the failure again unless
+    it is the bias. The straight line of a drift must move the channel by more than
+    :data:`DRIFT_SIGMAS` prediction sigmas, away from zero (the slope has the sign of the
+    line's mean: the prediction's pull toward the reading only shrinks the residual).
     """
     t, z, h, s2 = (np.asarray(a, dtype=float) for a in (t_s, z, h, s2))
     n = z.size
     if n < 3:
         raise ValueError(f"revisit_bias: expected at least 3 samples, got {n}")
     e = z - h
+    candidates = [_bias(e, s2), _scale(e, h, s2)]
     fitted, mean, slope = _line(t, e, s2)
     prediction_sigma = math.sqrt(max(float(np.mean(s2)) - noise_sigma**2, 0.0))
-    if abs(slope) * float(t[-1] - t[0]) <= DRIFT_SIGMAS * prediction_sigma or mean * slope <= 0.0:
-        return None
-    bias = _bias(e, s2)
-    if _gaussian(e, fitted, s2) - bias[0] <= 0.5 * math.log(n):  # one more parameter's price
-        return None
-    return FailureName("drift", slope)
+    if abs(slope) * float(t[-1] - t[0]) > DRIFT_SIGMAS * prediction_sigma and mean * slope > 0.0:
+        candidates.append((_gaussian(e, fitted, s2), 2, "drift", slope))
+    best = max(candidates, key=lambda c: c[0] - 0.5 * c[1] * math.log(n))
+    return None if best[2] == "bias" else FailureName(best[2], best[3])
 
 
 def _scale(e: np.ndarray, h: np.ndarray, s2: np.ndarray) -> tuple[float, int, str, float]:
