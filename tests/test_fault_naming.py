@@ -50,6 +50,19 @@ def test_each_kind_is_named_with_its_size_within_20_percent(kind, size, make):
             assert named.size == pytest.approx(size, rel=0.2), (seed, named)
 
 
+def test_a_noise_factor_is_read_from_the_readings_not_from_a_poor_prediction():
+    # the base's prediction of a declared gyro is 0.02 rad/s off (white) where its variance
+    # says 0.002: the residual's width would make a factor of 8 about 12; the readings'
+    # second differences do not see the prediction
+    for seed in range(5):
+        rng = np.random.default_rng(50 + seed)
+        t, truth, _, _ = _flight(rng)
+        h = truth + 0.02 * rng.standard_normal(N)
+        z = truth + 8.0 * SIGMA * rng.standard_normal(N)
+        named = classify_failure(t, z, h, S2, SIGMA)
+        assert named.kind == "noise" and named.size == pytest.approx(8.0, rel=0.2), (seed, named)
+
+
 def test_a_bias_seen_through_a_settling_prediction_is_no_drift():
     # the prediction starts 2 of its sigmas off and settles within 0.3 s (a re-based mode's
     # transient): the residual's ramp over the window is under 3 prediction sigmas, so the
