@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.stats import norm
 
-from immukf_sitl.service.fault_naming import FaultNamer, _spikes, classify_failure, revisit_bias
+from immukf_sitl.service.fault_naming import FaultNamer, _spikes, classify_failure, second_look
 
 SIGMA = 0.00227  # the gyro's noise (rad/s)
 PRED_SIGMA = 0.002  # the declared mode's prediction error of the channel
@@ -179,8 +179,8 @@ def test_a_slow_drift_named_a_bias_is_named_a_drift_at_its_second_look():
         z = healthy + 0.03 * (t - 27.0)
         first = classify_failure(t[:100], z[:100], h[:100], s2[:100], SIGMA)
         assert first.kind == "bias", (seed, first)
-        again = revisit_bias(t, z, h, s2, SIGMA)
-        assert again is not None and again.kind == "drift", (seed, again)
+        again = second_look(t, z, h, s2, SIGMA)
+        assert again.kind == "drift", (seed, again)
         assert again.size == pytest.approx(0.03, rel=0.2), (seed, again)
 
 
@@ -193,9 +193,9 @@ def test_a_bias_whose_prediction_is_pulled_toward_the_reading_stays_a_bias():
         rng = np.random.default_rng(30 + seed)
         t, truth, h, healthy, s2 = _slow_flight(rng, 5.0)
         pulled = h + 0.3 * (1.0 - np.exp(-(t - t[0]) / 3.0))
-        assert revisit_bias(t, healthy + 0.3, pulled, s2, SIGMA) is None, seed
-        assert revisit_bias(t, healthy + 0.3, h, s2, SIGMA) is None, seed
-        assert revisit_bias(t, healthy - 0.3, h - (pulled - h), s2, SIGMA) is None, seed
+        assert second_look(t, healthy + 0.3, pulled, s2, SIGMA).kind == "bias", seed
+        assert second_look(t, healthy + 0.3, h, s2, SIGMA).kind == "bias", seed
+        assert second_look(t, healthy - 0.3, h - (pulled - h), s2, SIGMA).kind == "bias", seed
 
 
 def test_a_gain_on_a_channel_that_held_still_is_named_a_gain_once_it_moves():
@@ -208,9 +208,24 @@ def test_a_gain_on_a_channel_that_held_still_is_named_a_gain_once_it_moves():
         truth = 0.12 + 0.15 * np.sin(2.0 * np.pi * 0.4 * np.maximum(t - 31.0, 0.0))
         h = truth + PRED_SIGMA * rng.standard_normal(t.size)
         z = 0.45 * (truth + SIGMA * rng.standard_normal(t.size))
-        again = revisit_bias(t, z, h, s2, SIGMA)
-        assert again is not None and again.kind == "scale", (seed, again)
+        again = second_look(t, z, h, s2, SIGMA)
+        assert again.kind == "scale", (seed, again)
         assert again.size == pytest.approx(0.45, rel=0.2), (seed, again)
+
+
+def test_a_drift_named_through_a_settling_prediction_gets_its_rate_at_the_second_look():
+    # the re-based prediction settles by 2 of its sigmas over the first 0.3 s, which the first
+    # second's line reads as part of the drift's rate; over 5 s the rate is the drift's own
+    for seed in range(5):
+        rng = np.random.default_rng(60 + seed)
+        t, truth, h, healthy, s2 = _slow_flight(rng, 5.0)
+        settling = 0.04 * np.exp(-(t - t[0]) / 0.1)
+        z = healthy + 0.1 * (t - 27.0)
+        first = classify_failure(t[:100], z[:100], h[:100] + settling[:100], s2[:100], SIGMA)
+        again = second_look(t, z, h + settling, s2, SIGMA)
+        assert first.kind == "drift" and again.kind == "drift", (seed, first, again)
+        assert abs(again.size - 0.1) < abs(first.size - 0.1), (seed, first, again)
+        assert again.size == pytest.approx(0.1, rel=0.1), (seed, again)
 
 
 def test_the_namer_names_a_slow_drift_twice_and_a_bias_once():
@@ -237,4 +252,4 @@ def test_too_few_samples_is_an_error():
     with pytest.raises(ValueError, match="at least 3 samples"):
         classify_failure(np.zeros(2), np.zeros(2), np.zeros(2), np.ones(2), SIGMA)
     with pytest.raises(ValueError, match="at least 3 samples"):
-        revisit_bias(np.zeros(2), np.zeros(2), np.zeros(2), np.ones(2), SIGMA)
+        second_look(np.zeros(2), np.zeros(2), np.zeros(2), np.ones(2), SIGMA)

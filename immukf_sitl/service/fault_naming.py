@@ -35,13 +35,14 @@ channel moves toward its reading (on the tuning draw, 10 s after an x-accelerome
 0.57 was declared, the prediction read what the faulty channel did), so the residual grows a
 slope that is not the fault's, and gains and biases were named drifts.
 
-A failure named a bias is looked at again :data:`SECOND_LOOK_S` after its declaration
-(:func:`revisit_bias`): a drift slow enough to pass for a bias in the first second has moved
-its channel further by then, and a gain has seen its channel's true value move. The pull of
+A failure named a bias or a drift is looked at again :data:`SECOND_LOOK_S` after its
+declaration (:func:`second_look`): a drift slow enough to pass for a bias in the first second
+has moved its channel further by then, its rate is read over seconds rather than through the
+re-based prediction's settling, and a gain has seen its channel's true value move. The pull of
 the prediction toward the reading only ever shrinks the residual, so a residual that keeps
 growing away from zero, by more than the drift rule's sigmas, is the fault's own ramp. The
-failure is named again, a drift or a gain, where that explains the whole window better than
-the bias.
+failure is named again where the whole window names it otherwise, or a drift at another
+rate.
 """
 
 from __future__ import annotations
@@ -59,7 +60,7 @@ __all__ = [
     "FailureName",
     "FaultNamer",
     "classify_failure",
-    "revisit_bias",
+    "second_look",
 ]
 
 #: how long after a declaration the readings are gathered before the failure is named (s)
@@ -164,23 +165,25 @@ def _drift(t: np.ndarray, e: np.ndarray, s2: np.ndarray) -> tuple[float, int, st
     return _gaussian(e, fitted, s2), 2, "drift", slope
 
 
-def revisit_bias(
+def second_look(
     t_s: np.ndarray, z: np.ndarray, h: np.ndarray, s2: np.ndarray, noise_sigma: float
-) -> FailureName | None:
-    """A drift or a gain, if the readings since a failure named a bias show one; else None.
+) -> FailureName:
+    """A bias, a gain or a drift: what the readings since a declaration show over seconds.
 
     The arguments are :func:`classify_failure`'s, over the :data:`SECOND_LOOK_S` after the
-    declaration. The residual ``e = z - h`` is explained by a bias, a gain (``e = (g - 1) h``,
-    which the first second cannot tell from a bias while the true value holds still) and a
-    drift, and the best by the Bayesian information criterion names the failure again unless
-    it is the bias. The straight line of a drift must move the channel by more than
-    :data:`DRIFT_SIGMAS` prediction sigmas, away from zero (the slope has the sign of the
-    line's mean: the prediction's pull toward the reading only shrinks the residual).
+    declaration of a failure its first second named a bias or a drift. The residual
+    ``e = z - h`` is explained by a bias, a gain (``e = (g - 1) h``, which the first second
+    cannot tell from a bias while the true value holds still) and a drift, and the best by the
+    Bayesian information criterion names the failure. The straight line of a drift must move
+    the channel by more than :data:`DRIFT_SIGMAS` prediction sigmas, away from zero (the slope
+    has the sign of the line's mean: the prediction's pull toward the reading only shrinks the
+    residual); its slope over seconds is the drift's rate, where the first second's also
+    holds the re-based prediction's settling.
     """
     t, z, h, s2 = (np.asarray(a, dtype=float) for a in (t_s, z, h, s2))
     n = z.size
     if n < 3:
-        raise ValueError(f"revisit_bias: expected at least 3 samples, got {n}")
+        raise ValueError(f"second_look: expected at least 3 samples, got {n}")
     e = z - h
     candidates = [_bias(e, s2), _scale(e, h, s2)]
     fitted, mean, slope = _line(t, e, s2)
@@ -188,7 +191,7 @@ def revisit_bias(
     if abs(slope) * float(t[-1] - t[0]) > DRIFT_SIGMAS * prediction_sigma and mean * slope > 0.0:
         candidates.append((_gaussian(e, fitted, s2), 2, "drift", slope))
     best = max(candidates, key=lambda c: c[0] - 0.5 * c[1] * math.log(n))
-    return None if best[2] == "bias" else FailureName(best[2], best[3])
+    return FailureName(best[2], best[3])
 
 
 def _scale(e: np.ndarray, h: np.ndarray, s2: np.ndarray) -> tuple[float, int, str, float]:
@@ -232,9 +235,9 @@ class FaultNamer:
     """Gathers each step's readings and predictions; names each declaration once its window is in.
 
     Every declared channel is named on its own (a second failure declared within the first's
-    window does not lose the first's name). A failure named a bias keeps being gathered until
-    ``second_look_s`` after its declaration, and is named again if :func:`revisit_bias` finds
-    a drift.
+    window does not lose the first's name). A failure named a bias or a drift keeps being
+    gathered until ``second_look_s`` after its declaration, and is named again where
+    :func:`second_look` names it otherwise (a drift: again, with the rate of the seconds).
 
     Parameters
     ----------
@@ -243,7 +246,8 @@ class FaultNamer:
     window_s : float
         How long after a declaration to gather (:data:`NAMING_WINDOW_S`).
     second_look_s : float
-        When a bias is looked at again (:data:`SECOND_LOOK_S`); at most ``window_s``: never.
+        When a bias or a drift is looked at again (:data:`SECOND_LOOK_S`); at most
+        ``window_s``: never.
     """
 
     def __init__(
@@ -257,7 +261,7 @@ class FaultNamer:
         self.second_look_s = second_look_s
         self._pending: dict[int, tuple[int, float]] = {}  # channel -> mode slot, declared at
         self._samples: dict[int, list[tuple[float, float, float, float]]] = {}
-        self._named_bias: set[int] = set()  # channels waiting for their second look
+        self._first: dict[int, FailureName] = {}  # channel -> first name, waiting for a second look
 
     @property
     def pending(self) -> bool:
@@ -274,14 +278,14 @@ class FaultNamer:
         for c in list(self._pending) if channel is None else [channel]:
             self._pending.pop(c, None)
             self._samples.pop(c, None)
-            self._named_bias.discard(c)
+            self._first.pop(c, None)
 
     def observe(
         self, t_s: float, imu: np.ndarray, innovations: np.ndarray, variances: np.ndarray
     ) -> list[tuple[int, FailureName]]:
         """Feed one step; returns ``(channel, name)`` of each failure whose window is full.
 
-        A bias found a drift at its second look is returned again, named a drift. A sample
+        A failure its second look names otherwise is returned again, renamed. A sample
         whose reading, prediction or variance is not a finite number (a variance not positive)
         says nothing of the failure and is left out.
         """
@@ -294,22 +298,23 @@ class FaultNamer:
                 continue
             samples = self._samples[i]
             samples.append((t_s, z, h, s2))
-            looking_again = i in self._named_bias
+            looking_again = i in self._first
             due = self.second_look_s if looking_again else self.window_s
             if t_s - since < due - 1e-9 or len(samples) < 3:
                 continue
             t, zs, hs, s2 = (np.array(c) for c in zip(*samples, strict=True))
             sigma = float(self.noise_sigmas[i])
             if looking_again:
+                first = self._first[i]
                 self.cancel(i)
-                drift = revisit_bias(t, zs, hs, s2, sigma)
-                if drift is not None:
-                    out.append((i, drift))
+                again = second_look(t, zs, hs, s2, sigma)
+                if again.kind != first.kind or again.kind == "drift":
+                    out.append((i, again))
                 continue
             name = classify_failure(t, zs, hs, s2, sigma)
             out.append((i, name))
-            if name.kind == "bias" and self.second_look_s > self.window_s:
-                self._named_bias.add(i)
+            if name.kind in ("bias", "drift") and self.second_look_s > self.window_s:
+                self._first[i] = name
             else:
                 self.cancel(i)
         return out
