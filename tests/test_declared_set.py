@@ -241,6 +241,29 @@ def test_a_spike_train_is_declared_at_its_second_spike_and_not_released_between_
     assert 4.5 <= events[0].t_s <= 4.55  # the last spike at 3.50 s, and the clear dwell
 
 
+def test_the_spike_that_lifts_a_slot_to_the_threshold_is_its_first():
+    """A train's first spike puts slot q from its floor to 0.99 in one sample (50 nats): no
+    offset is learnt yet to call it an outlier of, but it counts, and the next spike declares
+    (after the dwell). A slot lifted by evidence that builds up over samples has seen no spike:
+    its one outlier does not declare."""
+    for build_up in (False, True):
+        rng = np.random.default_rng(7)
+        det = DeclaredSetDetector(DetectorConfig(dwell_s=0.1, settle_s=0.0), 0.0)
+        events = []
+        for k in range(100):
+            p = 0.99 if k >= 20 else 0.5 * k / 20 if build_up else 1e-9
+            nats = (
+                6.95 if k == 40 else 50.0 if k == 20 and not build_up else 1.0 if build_up else 0.0
+            )
+            spike = _outliers((5, Q)) if k == 40 else _outliers()
+            nu = _innovations(rng)
+            events += det.update(
+                k * 0.01, _probs(5, p), _imu(rng), SIGMAS, nu, None, _q_evidence(nats), spike
+            )
+        got = [(e.kind, e.mode.name, round(e.t_s, 2)) for e in events]
+        assert got == ([] if build_up else [("detected", "q", 0.4)]), build_up
+
+
 def test_one_spike_of_a_leading_slot_does_not_declare_its_channel():
     rng = np.random.default_rng(6)
     det = DeclaredSetDetector(DetectorConfig(dwell_s=0.1, settle_s=0.0), 0.0)

@@ -26,9 +26,11 @@ channel's failure: the mode ``D + c`` is always in the bank.
   its update as an outlier of the offset it learnt
   (:meth:`~immukf_sitl.estimation.fault_modes.DeadOrAnyEvidence.outlier_gate`). A spike is
   such an outlier on which the slot out-scores slot 0 by ``ln(q / (1 - q))`` in that one
-  sample (a gust's 5-sigma tail costs the base about what the outlier costs the slot); a
-  *second* spike while the slot holds the threshold confirms the failure as the sustained
-  test's "without its largest sample" does.
+  sample (a gust's 5-sigma tail costs the base about what the outlier costs the slot), or the
+  sample that lifts the slot to the threshold by as much on its own (the first spike of a
+  train, which no learnt offset yet calls an outlier); a *second* spike while the slot holds
+  the threshold confirms the failure as the sustained test's "without its largest sample"
+  does.
 - **Release** channel ``c`` in ``D`` when, for ``clear_dwell_s``, slot ``D - c`` (the
   recovery) stays above ``1 - clear_threshold`` or the offset the base learnt for the channel
   stays within its uncertainty of zero while known to ``alive_sigmas`` noise sigmas (a channel
@@ -271,13 +273,13 @@ class DeclaredSetDetector:
         residuals = None if innovations is None else innovations[0] ** 2 / innovations[1]
         self._window.push(readings, residuals)
         spike = np.zeros(N_IMU + 1, dtype=bool)  # slots whose outlier this sample is a spike
+        jump = np.zeros(N_IMU + 1, dtype=bool)  # slots this one sample puts far ahead of slot 0
         if log_likelihoods is not None:
             ratio = np.asarray(log_likelihoods, dtype=float)
             self._evidence.append(ratio - ratio[0])
+            jump = self._evidence[-1] >= self._sustained_nats
             if outliers is not None:
-                spike[1:] = np.diagonal(outliers[1:]) & (
-                    self._evidence[-1][1:] >= self._sustained_nats
-                )
+                spike[1:] = np.diagonal(outliers[1:]) & jump[1:]
         if rest is not None and rest[2] > 0:
             ratios, nis, dof = rest
             self._rest.append((t_s, _beyond_the_others(ratios), np.asarray(nis), dof))
@@ -294,8 +296,11 @@ class DeclaredSetDetector:
             release = bool(self._bits >> channel & 1)
             level = 1.0 - cfg.clear_threshold if release else cfg.threshold
             if probabilities[j] >= level:
+                # the sample that lifts a slot to the threshold on its own is its first spike
+                # (no offset learnt yet to call it an outlier of)
+                lifted = j not in self._since and jump[j] and not release
                 self._since.setdefault(j, t_s)
-                if spike[j]:
+                if spike[j] or lifted:
                     self._outliers[j] = self._outliers.get(j, 0) + 1
             else:
                 self._since.pop(j, None)
