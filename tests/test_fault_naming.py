@@ -240,6 +240,29 @@ def test_the_namer_names_a_slow_drift_twice_and_a_bias_once():
     assert names == {"bias": [(100, 3, "bias")], "drift": [(100, 3, "bias"), (500, 3, "drift")]}
 
 
+def test_a_noise_is_named_again_with_its_factor_over_seconds():
+    # a factor of 4; in the first 0.6 s after the declaration the true rate jitters by 3 noise
+    # sigmas (the autopilot answering the re-based estimate), which one second's second
+    # differences count as noise; five seconds dilute it
+    rng = np.random.default_rng(8)
+    t, truth, h, _, s2 = _slow_flight(rng, 6.0)
+    jitter = np.where(t - t[0] < 0.6, 3.0 * SIGMA * rng.standard_normal(t.size), 0.0)
+    z = truth + jitter + 4.0 * SIGMA * rng.standard_normal(t.size)
+    namer = FaultNamer(np.array([0.0245] * 3 + [SIGMA] * 3), second_look_s=5.0)
+    namer.declared(0, 4, t[0])
+    nu = np.zeros((7, 6))
+    var = np.full((7, 6), s2[0])
+    got = []
+    for k in range(t.size):
+        imu = np.zeros(6)
+        imu[4] = z[k]
+        nu[0, 4] = z[k] - h[k]
+        got += [(k, n.kind, n.size) for _, n in namer.observe(t[k], imu, nu, var)]
+    assert [(k, kind) for k, kind, _ in got] == [(100, "noise"), (500, "noise")]
+    first, again = got[0][2], got[1][2]
+    assert abs(again - 4.0) < abs(first - 4.0) and again == pytest.approx(4.0, rel=0.1), got
+
+
 def test_too_few_samples_is_an_error():
     with pytest.raises(ValueError, match="at least 3 samples"):
         classify_failure(np.zeros(2), np.zeros(2), np.zeros(2), np.ones(2), SIGMA)

@@ -21,7 +21,9 @@ A noise's factor is then read from the readings themselves: their second differe
 ``z(k) - 2 z(k-1) + z(k-2)`` cancel a true value that moves smoothly over 20 ms and leave
 white noise of sigma ``k sqrt(R)`` with variance ``6 k^2 R``. The residual's width overstates
 it by the base's own error of the declared channel (on the held-out draw a gyro's factor of
-4.4 was named 40).
+4.4 was named 40). One second of readings gives the factor to about 10 %, and the second after
+a declaration is often rougher than the noise (the autopilot answers the re-based estimate), so
+the factor is read again over :data:`SECOND_LOOK_S`.
 
 A drift is named only when its ramp moves the channel by more than :data:`DRIFT_SIGMAS` sigmas
 of the prediction (``sqrt(s2 - R)``) over the window. The mode declared has not read the channel
@@ -237,7 +239,8 @@ class FaultNamer:
     Every declared channel is named on its own (a second failure declared within the first's
     window does not lose the first's name). A failure named a bias or a drift keeps being
     gathered until ``second_look_s`` after its declaration, and is named again where
-    :func:`second_look` names it otherwise (a drift: again, with the rate of the seconds).
+    :func:`second_look` names it otherwise (a drift: again, with the rate of the seconds); a
+    noise is named again with its factor over those seconds.
 
     Parameters
     ----------
@@ -246,7 +249,7 @@ class FaultNamer:
     window_s : float
         How long after a declaration to gather (:data:`NAMING_WINDOW_S`).
     second_look_s : float
-        When a bias or a drift is looked at again (:data:`SECOND_LOOK_S`); at most
+        When a bias, a drift or a noise is looked at again (:data:`SECOND_LOOK_S`); at most
         ``window_s``: never.
     """
 
@@ -307,13 +310,18 @@ class FaultNamer:
             if looking_again:
                 first = self._first[i]
                 self.cancel(i)
+                if first.kind == "noise":  # its factor over seconds, not one second's
+                    factor = _roughness_factor(t, zs, sigma**2)
+                    if factor is not None:
+                        out.append((i, FailureName("noise", factor)))
+                    continue
                 again = second_look(t, zs, hs, s2, sigma)
                 if again.kind != first.kind or again.kind == "drift":
                     out.append((i, again))
                 continue
             name = classify_failure(t, zs, hs, s2, sigma)
             out.append((i, name))
-            if name.kind in ("bias", "drift") and self.second_look_s > self.window_s:
+            if name.kind in ("bias", "drift", "noise") and self.second_look_s > self.window_s:
                 self._first[i] = name
             else:
                 self.cancel(i)
