@@ -220,24 +220,30 @@ def test_a_gain_on_a_channel_that_held_still_is_named_a_gain_once_it_moves():
         assert again.size == pytest.approx(0.45, rel=0.2), (seed, again)
 
 
+def _named(channel, t, z, h, s2):
+    """Each ``(step, name)`` a namer gives for readings ``z`` of ``channel``, declared at t[0]."""
+    namer = FaultNamer(np.array([0.0245] * 3 + [SIGMA] * 3), second_look_s=5.0)
+    namer.declared(0, channel, t[0])
+    nu = np.zeros((7, 6))
+    var = np.full((7, 6), s2[0])
+    got = []
+    for k in range(t.size):
+        imu = np.zeros(6)
+        imu[channel] = z[k]
+        nu[0, channel] = z[k] - h[k]
+        got += [(k, name) for c, name in namer.observe(t[k], imu, nu, var) if c == channel]
+    assert not namer.pending
+    return got
+
+
 def test_the_namer_names_a_slow_drift_twice_and_a_bias_once():
     rng = np.random.default_rng(5)
     t, truth, h, healthy, s2 = _slow_flight(rng, 6.0)
-    names = {}
-    for kind, fault in (("bias", 0.3 + 0.0 * t), ("drift", 0.03 * (t - 27.0))):
-        namer = FaultNamer(np.array([0.0245] * 3 + [SIGMA] * 3), second_look_s=5.0)
-        namer.declared(0, 3, t[0])
-        nu = np.zeros((7, 6))
-        var = np.full((7, 6), s2[0])
-        got = []
-        for k in range(t.size):
-            imu = np.zeros(6)
-            imu[3] = healthy[k] + fault[k]
-            nu[0, 3] = imu[3] - h[k]
-            got += [(k, c, n.kind) for c, n in namer.observe(t[k], imu, nu, var)]
-        names[kind] = got
-        assert not namer.pending
-    assert names == {"bias": [(100, 3, "bias")], "drift": [(100, 3, "bias"), (500, 3, "drift")]}
+    names = {
+        kind: [(k, n.kind) for k, n in _named(3, t, healthy + fault, h, s2)]
+        for kind, fault in (("bias", 0.3 + 0.0 * t), ("drift", 0.03 * (t - 27.0)))
+    }
+    assert names == {"bias": [(100, "bias")], "drift": [(100, "bias"), (500, "drift")]}
 
 
 def test_a_noise_is_named_again_with_its_factor_over_seconds():
@@ -247,19 +253,9 @@ def test_a_noise_is_named_again_with_its_factor_over_seconds():
     rng = np.random.default_rng(8)
     t, truth, h, _, s2 = _slow_flight(rng, 6.0)
     jitter = np.where(t - t[0] < 0.6, 3.0 * SIGMA * rng.standard_normal(t.size), 0.0)
-    z = truth + jitter + 4.0 * SIGMA * rng.standard_normal(t.size)
-    namer = FaultNamer(np.array([0.0245] * 3 + [SIGMA] * 3), second_look_s=5.0)
-    namer.declared(0, 4, t[0])
-    nu = np.zeros((7, 6))
-    var = np.full((7, 6), s2[0])
-    got = []
-    for k in range(t.size):
-        imu = np.zeros(6)
-        imu[4] = z[k]
-        nu[0, 4] = z[k] - h[k]
-        got += [(k, n.kind, n.size) for _, n in namer.observe(t[k], imu, nu, var)]
-    assert [(k, kind) for k, kind, _ in got] == [(100, "noise"), (500, "noise")]
-    first, again = got[0][2], got[1][2]
+    got = _named(4, t, truth + jitter + 4.0 * SIGMA * rng.standard_normal(t.size), h, s2)
+    assert [(k, n.kind) for k, n in got] == [(100, "noise"), (500, "noise")]
+    first, again = got[0][1].size, got[1][1].size
     assert abs(again - 4.0) < abs(first - 4.0) and again == pytest.approx(4.0, rel=0.1), got
 
 
