@@ -73,7 +73,7 @@ ZERO_QUANTILE = 0.999
 STUCK_SPREAD_SIGMAS = 0.1
 #: a drift moves its channel by more than this many sigmas of the prediction over the window
 DRIFT_SIGMAS = 3.0
-#: how long after a declaration a failure named a bias is looked at again for a drift (s)
+#: how long after a declaration a failure named a bias, a drift or a noise is looked at again (s)
 SECOND_LOOK_S = 5.0
 #: expectation-maximisation steps of the spike mixture's fit (it settles in a few dozen)
 _SPIKE_EM_STEPS = 60
