@@ -378,3 +378,45 @@ def test_while_a_slot_holds_the_threshold_the_probabilities_tests_decide(leader)
             k * 0.01, _probs(leader, 0.99), _imu(rng), SIGMAS, _innovations(rng), rest=rest
         )
     assert events == []
+
+
+@pytest.mark.parametrize(
+    ("kind", "size", "expected"),
+    [("noise", 3.0, 9.0), ("noise", 0.8, None), ("bias", 0.1, None), ("spikes", 0.3, None)],
+)
+def test_a_declared_channel_named_noisy_is_read_at_its_factor_squared(kind, size, expected):
+    det = DeclaredSetDetector(DetectorConfig(settle_s=0.0), 0.0, FaultMode(1 << Q))
+    assert det.read_var_scales() is None  # not named yet
+    det.named(Q, kind, size, 1.0)
+    got = det.read_var_scales()
+    if expected is None:
+        assert got is None
+    else:
+        want = np.ones(6)
+        want[Q] = expected
+        np.testing.assert_allclose(got, want)
+    det.named(0, "noise", 5.0, 1.0)  # x is not declared: no way to read it is kept
+    again = det.read_var_scales()
+    assert (again is None) if got is None else np.array_equal(again, got)
+
+
+@pytest.mark.parametrize(("kind", "released"), [("bias", True), ("noise", False)])
+def test_a_zero_offset_releases_a_bias_but_not_a_noise(kind, released):
+    """q declared, its offset known and zero, the base believed: a channel named biased reads
+    healthy again and is released after the clear dwell; one named noisy had a zero offset
+    all along (its failure is its spread) and stays declared until the slot that reads it at
+    its healthy noise is believed."""
+    rng = np.random.default_rng(12)
+    cfg = DetectorConfig(dwell_s=0.0, settle_s=0.0, clear_dwell_s=1.0)
+    det = DeclaredSetDetector(cfg, 0.0, FaultMode(1 << Q))
+    det.named(Q, kind, 3.0, 0.0)
+    events = []
+    for k in range(300):
+        events += det.update(k * 0.01, _probs(0, 1.0), _imu(rng), SIGMAS, _innovations(rng))
+    assert [(e.kind, e.mode.name) for e in events] == ([("cleared", "q")] if released else [])
+    if not released:
+        for k in range(300, 500):  # the slot that trusts q again is believed: released
+            events += det.update(
+                k * 0.01, _probs(1 + Q, 0.999), _imu(rng), SIGMAS, _innovations(rng)
+            )
+        assert [(e.kind, e.mode.name) for e in events] == [("cleared", "q")]

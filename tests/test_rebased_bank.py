@@ -405,3 +405,35 @@ def test_a_declared_channel_reading_anything_is_read_with_its_weight_a_new_one_f
     # with nothing declared, "anything" widens nothing: the paper's bank learns its offsets
     fresh, _ = _evidence(single_fault_modes())
     assert np.all(fresh.widths(anything) <= 0.0)
+
+
+@pytest.mark.parametrize("name", ["paper", "real-air"])
+def test_a_channel_named_noisy_is_read_at_its_noise_by_the_modes_that_take_it_for_failed(name):
+    """The innovation variance of p (declared, named noisy by a factor of 8) grows by exactly
+    ``(8^2 - 1) R_p`` in every slot that takes p for failed, from the same prior, and not at all
+    in the slot that trusts it again or on any other channel."""
+    from immukf_sitl.experiments.bench import ORIGIN, initial_cov, make_flight
+    from immukf_sitl.models.aero import AeroModel
+    from immukf_sitl.service.filters import Observation, build_aero_estimator
+
+    params = load_aircraft_params()
+    model = AeroModel(params, ORIGIN, compiled=False)
+    data = make_flight(model, 3, seed=4)
+    kind = PaperModel if name == "paper" else RealAirModel
+    bank = build_aero_estimator("imm", model, filter_model=kind(fault_signature="untrusted"))
+    on_p = bank.rebased(P)
+    start = on_p.start(0.0, *on_p.augmented(data.x0, initial_cov()), data.controls[0])
+    scales = np.ones(6)
+    scales[3] = 8.0**2
+    plain = on_p.step(start, model.dt_s, data.controls[1], Observation(data.imu[1]))
+    noisy = on_p.step(
+        start, model.dt_s, data.controls[1], Observation(data.imu[1], failed_var_scale=scales)
+    )
+    grown = noisy.filter.innovation_var - plain.filter.innovation_var
+    expected = np.zeros_like(grown)
+    r_p = ImuSpec().sigmas[3] ** 2
+    for j, mode in enumerate(on_p.modes):
+        if mode.bits >> 3 & 1:
+            expected[j, 3] = 63.0 * r_p
+    assert on_p.modes[4] == FaultMode(0)  # the recovery: reads p at R
+    np.testing.assert_allclose(grown, expected, rtol=1e-9, atol=1e-12 * r_p)

@@ -35,7 +35,9 @@ channel's failure: the mode ``D + c`` is always in the bank.
   recovery) stays above ``1 - clear_threshold`` or the offset the base learnt for the channel
   stays within its uncertainty of zero while known to ``alive_sigmas`` noise sigmas (a channel
   read as healthy plus an offset of zero, and no outlier of it, is a healthy one, which the
-  probabilities alone tell from the failed one only by the offset's uncertainty), *and* the
+  probabilities alone tell from the failed one only by the offset's uncertainty; not for a
+  channel named noisy, whose failure is its spread and whose offset is zero throughout: it is
+  released by the probabilities of the slot that reads it at its healthy noise), *and* the
   channel has shown life relative to the way it was named to fail. A failure defined by what
   the channel reads needs at least ``alive_samples`` readings more than ``alive_sigmas`` noise
   sigmas away from that (a zero: from zero; stuck: from the held value): a sensor stuck near
@@ -192,6 +194,20 @@ class DeclaredSetDetector:
         if self._bits >> channel & 1:
             self._failure[channel] = NamedFailure(kind, size, t_s)
 
+    def read_var_scales(self) -> np.ndarray | None:
+        """``(6,)``: the variance over ``R`` a declared channel named noisy is read with.
+
+        A channel named to fail by noise of factor ``k`` still measures its quantity, at ``k^2``
+        times its noise variance: read at that variance it keeps informing the state where read
+        at ``R`` it shook it (and its slot lost to any that widened the channel). 1 elsewhere;
+        None when no declared channel is named noisy.
+        """
+        scales = np.ones(N_IMU)
+        for channel, failure in self._failure.items():
+            if failure.kind == "noise" and failure.size is not None and failure.size > 1.0:
+                scales[channel] = failure.size**2
+        return scales if (scales > 1.0).any() else None
+
     def _change(self, channel: int) -> None:
         """Declare or release ``channel``; the bank re-bases on the new set."""
         self._bits ^= 1 << channel
@@ -233,7 +249,9 @@ class DeclaredSetDetector:
         for channel in list(self._life):
             sigma = float(imu_sigmas[channel])
             known = var[0, channel] <= (cfg.alive_sigmas * sigma) ** 2
-            if known and nu[0, channel] ** 2 <= self._consistent * var[0, channel]:
+            # a noise is a spread, not an offset: its offset of zero says nothing of its health
+            spread = self._failure[channel].kind == "noise"
+            if known and not spread and nu[0, channel] ** 2 <= self._consistent * var[0, channel]:
                 self._zero_offset_since.setdefault(channel, t_s)
             else:
                 self._zero_offset_since.pop(channel, None)

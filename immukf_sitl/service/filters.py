@@ -136,6 +136,10 @@ class Observation:
         (:class:`~immukf_sitl.service.control_hold.ControlHold`); None: the controls are exact.
     control_sensitivity : ControlSensitivity or None
         The model's sensitivity to the controls that turns ``control_var`` into noise.
+    failed_var_scale : ndarray, shape (6,), or None
+        The noise variance over ``R`` of each channel as the modes that take it for failed
+        read it (a noise the detector named: its factor squared); the mode that trusts the
+        channel reads it at ``imu_var_scale``. None: every mode at ``imu_var_scale``.
     """
 
     imu: np.ndarray
@@ -143,6 +147,7 @@ class Observation:
     imu_var_scale: float = 1.0
     control_var: np.ndarray | None = None
     control_sensitivity: ControlSensitivity | None = None
+    failed_var_scale: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -471,6 +476,9 @@ class AircraftEstimator(_Bank):
         extra = np.zeros((len(self.modes), model.nz))
         if observation.imu_var_scale != 1.0:  # the reading's own R, not one sample's
             extra[:, :6] = (observation.imu_var_scale - 1.0) * self.sensors.imu.sigmas**2
+        if observation.failed_var_scale is not None:  # a noisy channel read at its own noise
+            beyond = np.maximum(observation.failed_var_scale - observation.imu_var_scale, 0.0)
+            extra[:, :6] += (beyond * self.sensors.imu.sigmas**2) * (1.0 - self._healthy_masks)
         held, var = observation.control_sensitivity, observation.control_var
         if held is not None and var is not None:
             # the held controls' error: process noise on every mode's state (eq. 1), output

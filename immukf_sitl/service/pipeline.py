@@ -596,6 +596,12 @@ class EstimatorPipeline:
             self._sensitivity = self.estimator.control_sensitivity(self.estimate)
         return var, self._sensitivity
 
+    def _failed_var_scale(self) -> np.ndarray | None:
+        """How the modes that take a declared channel for failed read it: its named noise."""
+        if isinstance(self.detector, DeclaredSetDetector):
+            return self.detector.read_var_scales()
+        return None
+
     def _actuators_stale(self, t_s: float) -> bool:
         """Whether the servo outputs are older than a few of their own stream's intervals."""
         if self._actuator_s is None:
@@ -611,7 +617,9 @@ class EstimatorPipeline:
         assert self.estimate is not None
         assert self._controls is not None and self.origin is not None
         start = time.perf_counter()
-        observation = Observation(imu, gps, self._imu_var_scale, *self._held_controls(t_s))
+        observation = Observation(
+            imu, gps, self._imu_var_scale, *self._held_controls(t_s), self._failed_var_scale()
+        )
         est = self.estimator.step(self.estimate, t_s, self._controls, observation)
         if self._restart_at_s is not None and t_s >= self._restart_at_s:
             # the odds the modes took while the filters converged from the alignment measure
