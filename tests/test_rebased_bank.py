@@ -319,9 +319,9 @@ class _Scored(Exception):
     """Raised by the recording bank below once it has seen what the modes are scored with."""
 
 
-def test_the_unexplained_spread_scores_the_modes_only_while_nothing_is_declared():
-    """The spread the innovations show was learnt on the fault-free base: a re-based bank's
-    base is another filter, so its modes are scored with ``S`` alone."""
+def test_the_unexplained_spread_scores_the_modes_before_and_after_a_declaration():
+    """The spread the base's innovations show scores every bank's modes; a declared channel's
+    is forgotten when the bank re-bases (its innovations measured the failure, not the air)."""
     from immukf_sitl.service.turbulence import TurbulenceEstimate
 
     model = RealAirModel(fault_signature="untrusted")
@@ -336,11 +336,20 @@ def test_the_unexplained_spread_scores_the_modes_only_while_nothing_is_declared(
             seen.append(score_var)
             raise _Scored
 
-    for estimator in (bank, bank.rebased(P)):
+    rebased = bank.rebased(P)
+    for estimator, carried in ((bank, air), (rebased, air.forget_unexplained(P.healthy_mask == 0))):
         with pytest.raises(_Scored):
-            estimator.dynamics.step(Recorder(), None, air, 0.01, np.zeros((2, 4)), None)
+            estimator.dynamics.step(Recorder(), None, carried, 0.01, np.zeros((2, 4)), None)
     np.testing.assert_allclose(seen[0], np.full(6, 1e-3))
-    assert seen[1] is None
+    np.testing.assert_allclose(seen[1], [1e-3, 1e-3, 1e-3, 0.0, 1e-3, 1e-3])
+    # the paper's zero modes are scored as the paper scores them
+    zero = build_estimator(
+        "imm", load_aircraft_params(), NedOrigin(47.4, 8.5, 150.0),
+        filter_model=RealAirModel(fault_signature="zero"),
+    )  # fmt: skip
+    with pytest.raises(_Scored):
+        zero.dynamics.step(Recorder(), None, air, 0.01, np.zeros((2, 4)), None)
+    assert seen[2] is None
 
 
 def test_the_outlier_gate_keeps_out_what_the_offset_way_calls_an_outlier():

@@ -550,10 +550,9 @@ class RealAirModel(FilterModel):
     with ``adaptive_turbulence`` the wind and gust states' driving noise is scaled in flight to the
     air the innovations show, between ``turbulence_floor`` (0.1) and 1 times the design's, from
     ``turbulence_averaging_s`` (10 s) averages. With ``score_unexplained`` and the untrusted modes,
-    while nothing is declared, each IMU channel's and each GPS channel's variance beyond ``S``
-    over the last minute (the base's innovations) is added to ``S`` where the modes are scored,
-    not in the gain (a re-based bank's base is another filter, whose spread that average did not
-    measure). ``model_uncertainty`` (10 % aero, 5 % mass,
+    each IMU channel's and each GPS channel's variance beyond ``S`` over the last minute (the
+    base's innovations, a declared channel's forgotten at its declaration) is added to ``S``
+    where the modes are scored, not in the gain. ``model_uncertainty`` (10 % aero, 5 % mass,
     10 % inertia, 1-sigma relative) sizes the force and moment corrections, whose part that changes
     with the flight condition is a random walk over ``correction_time_constant_s`` (10 s).
     ``initial_wind_sigma_mps`` (10 m/s): nothing much is known of the wind at start-up.
@@ -783,7 +782,6 @@ class _RealAirDynamics(ModelDynamics):
         if (
             self.model.score_unexplained
             and self.model.fault_signature == "untrusted"  # the zero test needs none
-            and self.modes[0].bits == 0
         ):
             score_var = air.unexplained_var()
             n_gps = 0 if z is None else z.model.nz - N_IMU
