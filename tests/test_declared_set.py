@@ -420,3 +420,20 @@ def test_a_zero_offset_releases_a_bias_but_not_a_noise(kind, released):
                 k * 0.01, _probs(1 + Q, 0.999), _imu(rng), SIGMAS, _innovations(rng)
             )
         assert [(e.kind, e.mode.name) for e in events] == [("cleared", "q")]
+
+
+def test_the_slow_window_holds_three_fixes_at_1_hz_whatever_the_times_rounding():
+    """Sample times are sums of steps, a few 1e-12 s off, older ones by more (as traced in
+    flight): a fix exactly one window old leaves it all the same. Evidence of 2/7 of the
+    threshold a fix passes it over four fixes, not over three: nothing is declared."""
+    from immukf_sitl.service.declared_set import _REST_NATS
+
+    det = DeclaredSetDetector(DetectorConfig(dwell_s=0.1, settle_s=0.0), 0.0)
+    rng = np.random.default_rng(13)
+    evidence = _rest(6, _REST_NATS * 2.0 / 7.0)
+    events = []
+    for k in range(800):
+        t_s = k * 0.01 + 2e-12 - 1e-13 * k / 100.0  # the older, the further off
+        rest = evidence if k % 100 == 0 else None
+        events += det.update(t_s, _probs(6, 1e-9), _imu(rng), SIGMAS, _innovations(rng), rest=rest)
+    assert events == []

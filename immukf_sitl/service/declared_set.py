@@ -84,6 +84,10 @@ from immukf_sitl.service.detection import DetectionEvent, DetectorConfig, Signat
 #: mode's own history is about 1 s, ``history_floor / onset`` steps, so each fix is nearly
 #: fresh evidence); not swept
 _REST_WINDOW_S = 3.0
+#: times closer than this are one instant at the window's edge (s): sample times are sums of
+#: steps, off by ~1e-12 s, so a fix exactly one window old stayed in it or left it by chance
+#: (four fixes at 1 Hz instead of three); far below any IMU step
+_EDGE_S = 1e-3
 #: the slow-evidence test's threshold: a log-likelihood ratio has mean exp of 1 when the base
 #: is right, so one window passes ``h`` nats with probability at most ``exp(-h)`` (Markov's
 #: inequality); over six slots tested at most at 100 Hz for 3 h, a 5 % chance of one false
@@ -301,7 +305,7 @@ class DeclaredSetDetector:
         if rest is not None and rest[2] > 0:
             ratios, nis, dof = rest
             self._rest.append((t_s, _beyond_the_others(ratios), np.asarray(nis), dof))
-        while self._rest and self._rest[0][0] <= t_s - _REST_WINDOW_S:
+        while self._rest and self._rest[0][0] <= t_s - _REST_WINDOW_S + _EDGE_S:
             self._rest.popleft()
         if imu is not None and imu_sigmas is not None and innovations is not None:
             self._update_life(t_s, np.asarray(imu, dtype=float), imu_sigmas, innovations)
