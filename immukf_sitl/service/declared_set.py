@@ -176,6 +176,7 @@ class DeclaredSetDetector:
         self._window = SignatureWindow(config)
         self._life: dict[int, float] = {}  # declared channel -> decayed count of life
         self._failure: dict[int, NamedFailure] = {}
+        self._read_scales: np.ndarray | None = None
         self._zero_offset_since: dict[int, float] = {}  # declared channel -> reads healthy since
         self._consistent = float(chi2.ppf(config.signature_quantile, 1))
         q = config.signature_quantile
@@ -197,6 +198,7 @@ class DeclaredSetDetector:
         """How declared ``channel`` was named to fail (its life is judged against it)."""
         if self._bits >> channel & 1:
             self._failure[channel] = NamedFailure(kind, size, t_s)
+            self._reread()
 
     def read_var_scales(self) -> np.ndarray | None:
         """``(6,)``: the variance over ``R`` a declared channel named noisy is read with.
@@ -206,11 +208,15 @@ class DeclaredSetDetector:
         at ``R`` it shook it (and its slot lost to any that widened the channel). 1 elsewhere;
         None when no declared channel is named noisy.
         """
+        return self._read_scales
+
+    def _reread(self) -> None:
+        """Work out :meth:`read_var_scales` again: once per naming or change, not per step."""
         scales = np.ones(N_IMU)
         for channel, failure in self._failure.items():
             if failure.kind == "noise" and failure.size is not None and failure.size > 1.0:
                 scales[channel] = failure.size**2
-        return scales if (scales > 1.0).any() else None
+        self._read_scales = scales if (scales > 1.0).any() else None
 
     def _change(self, channel: int) -> None:
         """Declare or release ``channel``; the bank re-bases on the new set."""
@@ -228,6 +234,7 @@ class DeclaredSetDetector:
         self._zero_offset_since.pop(channel, None)
         if self._bits >> channel & 1:
             self._start_latch(channel)
+        self._reread()
 
     def _start_latch(self, channel: int) -> None:
         """A declared channel starts with no life shown and its failure not yet named."""
