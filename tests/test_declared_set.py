@@ -400,6 +400,25 @@ def test_a_declared_channel_named_noisy_is_read_at_its_factor_squared(kind, size
     assert (again is None) if got is None else np.array_equal(again, got)
 
 
+def test_a_named_channels_gain_is_known_unless_its_name_is_a_gain_or_a_dead_reading():
+    """q named a bias, a drift, a noise or spikes reads at its own gain (g = 0, drift rate
+    learnt); renamed a gain, or named stuck or zero, its gain is learnt again; an undeclared
+    channel's name is not kept, and a release forgets the channel's."""
+    det = DeclaredSetDetector(DetectorConfig(settle_s=0.0), 0.0, FaultMode(1 << Q))
+    assert det.error_holds() == {}  # not named yet: all learnt
+    for t_s, kind in enumerate(("bias", "drift", "noise", "spikes")):
+        det.named(Q, kind, 2.0, float(t_s))
+        assert det.error_holds() == {Q: (None, 0.0)}, kind
+    det.named(0, "bias", 1.0, 6.0)  # x is not declared
+    assert det.error_holds() == {Q: (None, 0.0)}
+    for kind in ("scale", "bias", "stuck", "bias", "zero"):
+        det.named(Q, kind, 0.5, 7.0)
+        assert det.error_holds() == ({Q: (None, 0.0)} if kind == "bias" else {}), kind
+    det.named(Q, "noise", 3.0, 8.0)
+    det._change(Q)  # released
+    assert det.error_holds() == {}
+
+
 @pytest.mark.parametrize(("kind", "released"), [("bias", True), ("noise", False)])
 def test_a_zero_offset_releases_a_bias_but_not_a_noise(kind, released):
     """q declared, its offset known and zero, the base believed: a channel named biased reads

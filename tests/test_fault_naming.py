@@ -246,6 +246,28 @@ def test_the_namer_names_a_slow_drift_twice_and_a_bias_once():
     assert names == {"bias": [(100, "bias")], "drift": [(100, "bias"), (500, "drift")]}
 
 
+def test_a_name_is_final_once_nothing_is_to_be_looked_at_again():
+    """A bias named in the first second waits 5 s for its second look (the estimate must not
+    take it as known before); a stuck reading is final when named."""
+    rng = np.random.default_rng(6)
+    t, truth, h, healthy, s2 = _slow_flight(rng, 6.0)
+    for z, kind, final_at in ((healthy + 0.3, "bias", 500), (np.full(t.size, 0.21), "stuck", 100)):
+        namer = FaultNamer(np.array([0.0245] * 3 + [SIGMA] * 3), second_look_s=5.0)
+        namer.declared(0, 3, t[0])
+        nu = np.zeros((7, 6))
+        var = np.full((7, 6), s2[0])
+        looking = []
+        for k in range(t.size):
+            imu = np.zeros(6)
+            imu[3] = z[k]
+            nu[0, 3] = z[k] - h[k]
+            named = namer.observe(t[k], imu, nu, var)
+            assert all(n.kind == kind for _, n in named)
+            looking.append(namer.looking(3))
+        assert looking.index(False) == final_at, kind
+        assert not any(looking[final_at:]) and not namer.looking(0)
+
+
 def test_a_noise_is_named_again_with_its_factor_over_seconds():
     # a factor of 4; in the first 0.6 s after the declaration the true rate jitters by 3 noise
     # sigmas (the autopilot answering the re-based estimate), which one second's second

@@ -150,6 +150,49 @@ def test_a_declared_channel_reads_its_gain_and_its_offset_moves_at_its_drift_rat
                 assert m2[j, row] == means[j, row] and c2[j, row, row] == 0.01
 
 
+def test_a_named_channels_drift_rate_and_gain_are_read_as_the_values_its_name_knows():
+    """p declared, its drift rate known to be 0.002 and its gain -1: the offsets read those
+    values whatever the states hold (a slot that distrusts p predicts ``range e`` whatever the
+    state's rate, and its offset moves by ``dt 0.002``), and every slot keeps the two states
+    at those values and their prior variance, unread and uncorrelated; let go, they are
+    learnt from there."""
+    modes = bank_modes(P)
+    ranges = ImuSpec().ranges
+    p = 3
+    learnt = ChannelOffset(modes, ranges, index=3, walk_var=1e-9, tracked=(p,))
+    known = learnt.holding({p: (0.002, -1.0), 0: (0.0, 0.0)})  # x is not tracked: not held
+    assert known.held == ((9, 0.002), (10, -1.0))
+    np.testing.assert_array_equal(known.walk(0.01), learnt.walk(0.01))
+    rng = np.random.default_rng(5)
+    x = rng.normal(0.0, 0.1, (11, 7, 4))
+    healthy = rng.normal(0.0, 1.0, (6, 7, 4))
+    predicted = healthy + known.output(x, healthy)
+    for j, mode in enumerate(modes):
+        if mode.bits >> p & 1:  # the offset alone, none of the state's rate
+            np.testing.assert_allclose(predicted[p, j], ranges[p] * x[3 + p, j], atol=1e-12)
+        else:
+            np.testing.assert_array_equal(predicted[p, j], healthy[p, j])
+    out = np.full(x.shape, np.nan)
+    known.fly(x, out, 0.01)
+    np.testing.assert_allclose(out[3 + p], x[3 + p] + 0.01 * 0.002)
+    np.testing.assert_array_equal(out[9:11], x[9:11])
+    means = rng.normal(0.0, 0.1, (7, 11))
+    covs = np.tile(np.eye(11) * 0.01 + 0.001, (7, 1, 1))
+    m2, c2 = known.reset(means, covs)
+    np.testing.assert_array_equal(m2[:, 9:11], np.tile([0.002, -1.0], (7, 1)))
+    for row, prior in ((9, DRIFT_PRIOR_VAR), (10, GAIN_PRIOR_VAR)):
+        expected = np.zeros((7, 11))
+        expected[:, row] = prior
+        np.testing.assert_array_equal(c2[:, row, :], expected)
+        np.testing.assert_array_equal(c2[:, :, row], expected)
+    drift = learnt.holding({p: (None, -1.0)})  # the rate let go: read from the state again
+    assert drift.held == ((10, -1.0),)
+    drift.fly(x, out, 0.01)
+    np.testing.assert_allclose(out[3 + p], x[3 + p] + 0.01 * x[9])
+    m3, _ = drift.reset(m2, c2)
+    assert m3[0, 9] == 0.002  # learnt from the value it was known at
+
+
 @pytest.mark.parametrize("name", ["paper", "real-air"])
 def test_a_declaration_adds_the_channels_drift_rate_and_gain_and_a_release_drops_them(name):
     """nx grows by two per declared channel; the states both layouts hold move with their

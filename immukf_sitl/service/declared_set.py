@@ -80,6 +80,16 @@ from scipy.stats import chi2
 from immukf_sitl.estimation.fault_modes import IMU_CHANNELS, N_IMU, FaultMode, bank_modes
 from immukf_sitl.service.detection import DetectionEvent, DetectorConfig, SignatureWindow
 
+#: a declared channel's (drift rate, gain) by the kind it was named (None: learnt), in the
+#: states' units: a bias, a drift, a noise or spikes leave the sensor's gain alone (g = 0); a
+#: gain learns its own, and a zero or a stuck reading learns -1 (it reads nothing of the
+#: state). Drift rates stay learnt: a drift named a bias is common (docs/design)
+_NAMED_ERRORS: dict[str, tuple[float | None, float | None]] = {
+    "bias": (None, 0.0),
+    "drift": (None, 0.0),
+    "noise": (None, 0.0),
+    "spikes": (None, 0.0),
+}
 #: the slow-evidence test's window: three fixes at the 1 Hz of the campaigns' GPS (a fault
 #: mode's own history is about 1 s, ``history_floor / onset`` steps, so each fix is nearly
 #: fresh evidence); not swept
@@ -177,6 +187,7 @@ class DeclaredSetDetector:
         self._life: dict[int, float] = {}  # declared channel -> decayed count of life
         self._failure: dict[int, NamedFailure] = {}
         self._read_scales: np.ndarray | None = None
+        self._holds: dict[int, tuple[float | None, float | None]] = {}
         self._zero_offset_since: dict[int, float] = {}  # declared channel -> reads healthy since
         self._consistent = float(chi2.ppf(config.signature_quantile, 1))
         q = config.signature_quantile
@@ -210,12 +221,25 @@ class DeclaredSetDetector:
         """
         return self._read_scales
 
+    def error_holds(self) -> dict[int, tuple[float | None, float | None]]:
+        """Each named declared channel's drift rate and gain where its name knows them.
+
+        ``{channel: (drift rate, gain)}`` (``None``: learnt) for
+        :meth:`~immukf_sitl.estimation.fault_modes.ChannelOffset.holding`: a channel named a
+        bias, a drift, a noise or spikes reads its rate at the sensor's own gain. Learnt, a
+        declared gyro's gain took up the model's error of the rate it predicts in turbulence.
+        """
+        return dict(self._holds)
+
     def _reread(self) -> None:
-        """Work out :meth:`read_var_scales` again: once per naming or change, not per step."""
+        """Work out :meth:`read_var_scales` and :meth:`error_holds`: per naming or change."""
         scales = np.ones(N_IMU)
+        self._holds = {}
         for channel, failure in self._failure.items():
             if failure.kind == "noise" and failure.size is not None and failure.size > 1.0:
                 scales[channel] = failure.size**2
+            if failure.kind in _NAMED_ERRORS:
+                self._holds[channel] = _NAMED_ERRORS[failure.kind]
         self._read_scales = scales if (scales > 1.0).any() else None
 
     def _change(self, channel: int) -> None:

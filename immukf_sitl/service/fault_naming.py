@@ -276,6 +276,10 @@ class FaultNamer:
         self._pending[channel] = (mode_index, t_s)
         self._samples[channel] = []
 
+    def looking(self, channel: int) -> bool:
+        """Whether ``channel``'s failure waits to be named, or to be looked at again."""
+        return channel in self._pending
+
     def cancel(self, channel: int | None = None) -> None:
         """Forget a pending declaration (``channel``; None: all of them)."""
         for c in list(self._pending) if channel is None else [channel]:

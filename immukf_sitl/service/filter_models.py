@@ -28,7 +28,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 from abc import ABC, abstractmethod
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import ClassVar
 
@@ -137,9 +137,29 @@ class ModelDynamics(ABC):
         other.modes = tuple(modes)
         if self.offset is not None:
             tracked = tuple(IMU_CHANNELS.index(c) for c in other.modes[0].channels)
-            other.offset = dataclasses.replace(self.offset, modes=other.modes, tracked=tracked)
-            other.process = other._padded_process(self._core_process, other.offset)
+            offset = dataclasses.replace(self.offset, modes=other.modes, tracked=tracked, held=())
+            other._use_offset(offset)
         return other
+
+    def holding(self, errors: Mapping[int, tuple[float | None, float | None]]) -> ModelDynamics:
+        """The same model with declared channels' drift rates and gains held where known.
+
+        ``errors``: :meth:`ChannelOffset.holding`'s, from the channels' names. Returns this
+        model where nothing changes.
+        """
+        if self.offset is None:
+            return self
+        offset = self.offset.holding(errors)
+        if offset.held == self.offset.held:
+            return self
+        other = copy.copy(self)
+        other._use_offset(offset)
+        return other
+
+    def _use_offset(self, offset: ChannelOffset) -> None:
+        """Fly ``offset``'s states after the model's own (a copy's: the process is rebuilt)."""
+        self.offset = offset
+        self.process = self._padded_process(self._core_process, offset)
 
     def _offset_state(self, sensors: SensorSpec, model: FilterModel) -> None:
         """Append the six offsets to :attr:`process` for untrusted modes (see ChannelOffset)."""
@@ -653,13 +673,11 @@ class RealAirModel(FilterModel):
 class _RealAirDynamics(ModelDynamics):
     """The real-air model flown: the 30-state model, its gate and its turbulence adapter."""
 
-    def with_modes(self, modes: Sequence[FaultMode]) -> _RealAirDynamics:
-        """:meth:`ModelDynamics.with_modes`, the turbulence adapter scaling the new process."""
-        other = super().with_modes(modes)
-        assert isinstance(other, _RealAirDynamics)
-        if other.adapter is not None and other.process is not self.process:
-            other.adapter = dataclasses.replace(other.adapter, process=other.process)
-        return other
+    def _use_offset(self, offset: ChannelOffset) -> None:
+        """:meth:`ModelDynamics._use_offset`, the turbulence adapter scaling the new process."""
+        super()._use_offset(offset)
+        if self.adapter is not None:
+            self.adapter = dataclasses.replace(self.adapter, process=self.process)
 
     def __init__(
         self,

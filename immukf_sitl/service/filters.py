@@ -19,7 +19,7 @@ records; the estimators hold no state but their filters' safeguard counters.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from functools import cached_property
 from typing import Literal
@@ -333,6 +333,21 @@ class AircraftEstimator(_Bank):
             ukf = UnscentedKalmanFilter(dynamics.process, ukf.scheme, ukf.noise_form, ukf.compiled)
             ukf.diagnostics = self.imm.ukf.diagnostics
         return _assemble(self.variant, modes, ukf, dynamics, self.filter_model, self.sensors)
+
+    def holding(self, errors: Mapping[int, tuple[float | None, float | None]]) -> AircraftEstimator:
+        """The same bank with declared channels' drift rates and gains held where known.
+
+        ``errors``: :meth:`ChannelOffset.holding`'s. The state's layout is unchanged, so an
+        estimate carries over as it is once :meth:`ModelDynamics.settled_offsets` has put the
+        held states at their values. Returns this bank where nothing changes.
+        """
+        dynamics = self.dynamics.holding(errors)
+        if dynamics is self.dynamics:
+            return self
+        ukf = self.imm.ukf
+        ukf = UnscentedKalmanFilter(dynamics.process, ukf.scheme, ukf.noise_form, ukf.compiled)
+        ukf.diagnostics = self.imm.ukf.diagnostics
+        return _assemble(self.variant, self.modes, ukf, dynamics, self.filter_model, self.sensors)
 
     def carried_over(
         self, estimate: VariantEstimate, previous: AircraftEstimator

@@ -534,9 +534,10 @@ class EstimatorPipeline:
             None if bank.rest_ratios is None else (bank.rest_ratios, bank.rest_nis, bank.rest_dof),
         )  # fmt: skip
         names = []
-        if self._namer.pending:  # the naming residuals only while a declaration waits for them
-            naming = self.estimator.naming_innovations(est)
-            names = [] if naming is None else self._namer.observe(t_s, imu, *naming)
+        naming = self._namer.pending
+        if naming:  # the naming residuals only while a declaration waits for them
+            residuals = self.estimator.naming_innovations(est)
+            names = [] if residuals is None else self._namer.observe(t_s, imu, *residuals)
         for k, event in enumerate(events):
             channel = int(np.flatnonzero(event.mode.healthy_mask == 0.0)[0])
             if event.kind == "cleared":
@@ -557,7 +558,26 @@ class EstimatorPipeline:
             e.kind in ("detected", "cleared") for e in events
         ):
             self._rebase(declared=any(e.kind == "detected" for e in events))
+        if naming or any(e.kind in ("detected", "cleared") for e in events):
+            self._hold_named_errors()
         return events
+
+    def _hold_named_errors(self) -> None:
+        """Hold each declared channel's drift rate and gain where its last name knows them.
+
+        Only a name that is not to be looked at again: a bias, a drift or a noise named in the
+        first second is provisional (a drift or a gain slow to show passes for a bias then),
+        and held at it, the second look no longer saw what the name missed.
+        """
+        if not isinstance(self.detector, DeclaredSetDetector):
+            return
+        assert isinstance(self.estimator, AircraftEstimator) and self.estimate is not None
+        holds = self.detector.error_holds()
+        known = {c: v for c, v in holds.items() if not self._namer.looking(c)}
+        held = self.estimator.holding(known)
+        if held is not self.estimator:
+            self.estimate = held.carried_over(self.estimate, self.estimator)
+            self.estimator = held
 
     def _rebase(self, declared: bool) -> None:
         """Move the bank and its estimate onto the detector's declared set.
