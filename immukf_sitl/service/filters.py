@@ -327,12 +327,7 @@ class AircraftEstimator(_Bank):
         if self.variant != "imm":
             raise ValueError(f"only the IMM re-bases, not {self.variant!r}")
         modes = bank_modes(declared)
-        dynamics = self.dynamics.with_modes(modes)
-        ukf = self.imm.ukf
-        if dynamics.process is not ukf.process:  # the declared channels' error states
-            ukf = UnscentedKalmanFilter(dynamics.process, ukf.scheme, ukf.noise_form, ukf.compiled)
-            ukf.diagnostics = self.imm.ukf.diagnostics
-        return _assemble(self.variant, modes, ukf, dynamics, self.filter_model, self.sensors)
+        return self._over(modes, self.dynamics.with_modes(modes))
 
     def holding(self, errors: Mapping[int, tuple[float | None, float | None]]) -> AircraftEstimator:
         """The same bank with declared channels' drift rates and gains held where known.
@@ -342,12 +337,15 @@ class AircraftEstimator(_Bank):
         held states at their values. Returns this bank where nothing changes.
         """
         dynamics = self.dynamics.holding(errors)
-        if dynamics is self.dynamics:
-            return self
+        return self if dynamics is self.dynamics else self._over(self.modes, dynamics)
+
+    def _over(self, modes: Sequence[FaultMode], dynamics: ModelDynamics) -> AircraftEstimator:
+        """The bank of ``modes`` over ``dynamics``, its filters' counters carried on."""
         ukf = self.imm.ukf
-        ukf = UnscentedKalmanFilter(dynamics.process, ukf.scheme, ukf.noise_form, ukf.compiled)
-        ukf.diagnostics = self.imm.ukf.diagnostics
-        return _assemble(self.variant, self.modes, ukf, dynamics, self.filter_model, self.sensors)
+        if dynamics.process is not ukf.process:  # the declared channels' error states
+            ukf = UnscentedKalmanFilter(dynamics.process, ukf.scheme, ukf.noise_form, ukf.compiled)
+            ukf.diagnostics = self.imm.ukf.diagnostics
+        return _assemble(self.variant, modes, ukf, dynamics, self.filter_model, self.sensors)
 
     def carried_over(
         self, estimate: VariantEstimate, previous: AircraftEstimator
