@@ -220,9 +220,9 @@ def test_a_gain_on_a_channel_that_held_still_is_named_a_gain_once_it_moves():
         assert again.size == pytest.approx(0.45, rel=0.2), (seed, again)
 
 
-def _named(channel, t, z, h, s2):
+def _named(channel, t, z, h, s2, bands=None):
     """Each ``(step, name)`` a namer gives for readings ``z`` of ``channel``, declared at t[0]."""
-    namer = FaultNamer(np.array([0.0245] * 3 + [SIGMA] * 3), second_look_s=5.0)
+    namer = FaultNamer(np.array([0.0245] * 3 + [SIGMA] * 3), second_look_s=5.0, bands=bands)
     namer.declared(0, channel, t[0])
     nu = np.zeros((7, 6))
     var = np.full((7, 6), s2[0])
@@ -266,6 +266,35 @@ def test_a_name_is_final_once_nothing_is_to_be_looked_at_again():
             looking.append(namer.looking(3))
         assert looking.index(False) == final_at, kind
         assert not any(looking[final_at:]) and not namer.looking(0)
+
+
+#: the MEMS sheet's healthy bands: 5 sigmas of noise and turn-on bias in quadrature
+BANDS = 5.0 * np.hypot([0.0245] * 3 + [SIGMA] * 3, [0.02] * 3 + [0.0017] * 3)
+
+
+@pytest.mark.parametrize("first_spike_s", [1.3, 2.5])
+def test_a_spike_train_quiet_in_its_first_second_is_named_at_the_second_look(first_spike_s):
+    # a train declared at a spike may not spike again for seconds (2 Hz Poisson: no spike in
+    # 1 s one time in e^2). Its first second then shows nothing a healthy sensor cannot read,
+    # so nothing is named there; the seconds of the second look show the spikes
+    rng = np.random.default_rng(9)
+    t, truth, h, healthy, s2 = _slow_flight(rng, 6.0)
+    spikes = np.zeros(t.size)
+    at = (first_spike_s + np.array([0.0, 0.8, 1.1, 2.0])) * 100.0
+    spikes[at.astype(int)] = 0.3 * np.array([1.0, -1.0, -1.0, 1.0])
+    got = _named(5, t, healthy + spikes, h, s2, BANDS)
+    assert [(k, n.kind) for k, n in got] == [(500, "spikes")]
+    assert got[0][1].size == pytest.approx(0.3, rel=0.2)
+    # without the bands the first second is named after whatever fits it best
+    assert _named(5, t, healthy + spikes, h, s2)[0][0] == 100
+
+
+def test_a_failure_beyond_the_band_is_still_named_at_the_first_second():
+    rng = np.random.default_rng(10)
+    t, truth, h, healthy, s2 = _slow_flight(rng, 6.0)
+    got = _named(3, t, healthy + 0.05, h, s2, BANDS)  # 3.5 times the gyro's band of 0.0142
+    assert [(k, n.kind) for k, n in got] == [(100, "bias")]
+    assert got[0][1].size == pytest.approx(0.05, rel=0.2)
 
 
 def test_a_noise_is_named_again_with_its_factor_over_seconds():

@@ -30,7 +30,7 @@ import numpy as np
 
 from immukf_sitl.estimation.fault_modes import IMU_CHANNELS
 from immukf_sitl.fault_kinds import spike_schedule
-from immukf_sitl.models.sensors import ImuSpec
+from immukf_sitl.models.sensors import DETECTABLE_SIGMAS, ImuSpec
 from immukf_sitl.scenario import FaultSpec
 
 __all__ = [
@@ -44,7 +44,7 @@ __all__ = [
 ]
 
 #: Width of the band around zero, in standard deviations of the sensor noise.
-DEFAULT_N_SIGMA = 5.0
+DEFAULT_N_SIGMA = DETECTABLE_SIGMAS
 #: A noise fault whose sigma factor is at most this is within what one IMU sample can show: a
 #: factor k puts 1 sample in ``2 (1 - Phi(n_sigma / k))`` beyond ``n_sigma`` noise sigmas of
 #: the healthy reading, one a second at 100 Hz and n_sigma 5 for k = 5 / 2.58 = 1.94 (the
@@ -100,8 +100,8 @@ def channel_sigma(channel: str, imu: ImuSpec) -> float:
 
 def channel_band_sigma(channel: str, imu: ImuSpec) -> float:
     """What a healthy channel can read off the truth, 1 sigma: white noise and turn-on bias."""
-    noise = channel_sigma(channel, imu)  # rejects a channel that is not one
-    return float(np.hypot(noise, imu.bias_sigmas[IMU_CHANNELS.index(channel)]))
+    channel_sigma(channel, imu)  # rejects a channel that is not one
+    return float(imu.band_sigmas[IMU_CHANNELS.index(channel)])
 
 
 def fault_deviation(fault: FaultSpec, times_s: np.ndarray, true_channel: np.ndarray) -> np.ndarray:

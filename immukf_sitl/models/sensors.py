@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 __all__ = [
+    "DETECTABLE_SIGMAS",
     "IMU_PERIOD_S",
     "IMU_RATE_HZ",
     "NOMINAL_GROUND_SPEED_MPS",
@@ -28,6 +29,9 @@ __all__ = [
     "SensorSpec",
 ]
 
+#: A fault is detectable once it moves its channel beyond this many of
+#: :attr:`ImuSpec.band_sigmas` (one sample in 1.7 million of a healthy sensor's noise).
+DETECTABLE_SIGMAS = 5.0
 #: Rate of the IMU, of the simulation step and of the filter step (Hz).
 IMU_RATE_HZ = 100.0
 #: One IMU period (s): the simulation's and the filter's time step.
@@ -124,6 +128,15 @@ class ImuSpec:
     def bias_sigmas(self) -> np.ndarray:
         """Turn-on bias sigmas of ``[f_x, f_y, f_z, p, q, r]`` (m/s^2, rad/s)."""
         return np.array([self.accel_bias_sigma_mps2] * 3 + [self.gyro_bias_sigma_radps] * 3)
+
+    @property
+    def band_sigmas(self) -> np.ndarray:
+        """What a healthy channel can read off the truth, 1 sigma: white noise and turn-on bias.
+
+        A fault that moves a channel by less than :data:`DETECTABLE_SIGMAS` of these is one the
+        spec sheet allows a healthy sensor (``[f_x, f_y, f_z, p, q, r]``, m/s^2 and rad/s).
+        """
+        return np.hypot(self.sigmas, self.bias_sigmas)
 
     def spec_sheet(self) -> ImuSpec:
         """What a filter may be told: the sigmas, without the simulation's true bias values."""

@@ -45,6 +45,12 @@ the prediction toward the reading only ever shrinks the residual, so a residual 
 growing away from zero, by more than the drift rule's sigmas, is the fault's own ramp. The
 failure is named again where the whole window names it otherwise, or a drift at another
 rate.
+
+A name whose fitted deviation from the healthy reading stays inside the band a healthy sensor
+reads off the truth (``bands``: 5 sigmas of noise and turn-on bias, the band that defines a
+detectable fault) shows no failure: the first second of a spike train that has not spiked
+again, a gain while its channel holds still. It is not published (:data:`UNSEEN`), and the
+failure is named by every kind over the second look's seconds.
 """
 
 from __future__ import annotations
@@ -59,6 +65,7 @@ from scipy.stats import chi2
 __all__ = [
     "NAMING_WINDOW_S",
     "SECOND_LOOK_S",
+    "UNSEEN",
     "FailureName",
     "FaultNamer",
     "classify_failure",
@@ -75,6 +82,10 @@ STUCK_SPREAD_SIGMAS = 0.1
 DRIFT_SIGMAS = 3.0
 #: how long after a declaration a failure named a bias, a drift or a noise is looked at again (s)
 SECOND_LOOK_S = 5.0
+#: the name of a window whose best explanation stays within what a healthy sensor reads (the
+#: first second of a spike train that has not spiked again, a gain on a channel holding still):
+#: never published; the failure is named over the seconds of the second look instead
+UNSEEN = "unseen"
 #: expectation-maximisation steps of the spike mixture's fit (it settles in a few dozen)
 _SPIKE_EM_STEPS = 60
 
@@ -88,7 +99,12 @@ class FailureName:
 
 
 def classify_failure(
-    t_s: np.ndarray, z: np.ndarray, h: np.ndarray, s2: np.ndarray, noise_sigma: float
+    t_s: np.ndarray,
+    z: np.ndarray,
+    h: np.ndarray,
+    s2: np.ndarray,
+    noise_sigma: float,
+    band: float | None = None,
 ) -> FailureName:
     """The kind and size of a failed channel from its readings and the healthy prediction.
 
@@ -104,6 +120,10 @@ def classify_failure(
         Variance of ``z - h`` for a healthy channel (prediction and sensor noise).
     noise_sigma : float
         The sensor's white-noise sigma.
+    band : float, optional
+        Half-width of what a healthy channel may read off the truth (its noise and turn-on
+        bias); a bias, drift, gain or spike train that keeps the residual's fitted deviation
+        within it shows no failure, and is named :data:`UNSEEN`. None: always a kind.
     """
     t, z, h, s2 = (np.asarray(a, dtype=float) for a in (t_s, z, h, s2))
     n = z.size
@@ -125,10 +145,27 @@ def classify_failure(
     if abs(drift[3]) * float(t[-1] - t[0]) <= DRIFT_SIGMAS * prediction_sigma:
         candidates.remove(drift)
     best = max(candidates, key=lambda c: c[0] - 0.5 * c[1] * math.log(n))
+    if band is not None and best[2] != "noise" and _deviation(t, e, h, s2, best) <= band:
+        return FailureName(UNSEEN, None)
     if best[2] == "noise":
         factor = _roughness_factor(t, z, r)
         return FailureName("noise", best[3] if factor is None else factor)
     return FailureName(best[2], best[3])
+
+
+def _deviation(
+    t: np.ndarray, e: np.ndarray, h: np.ndarray, s2: np.ndarray,
+    fit: tuple[float, int, str, float],
+) -> float:  # fmt: skip
+    """The largest deviation from the healthy reading that a fitted kind puts on the window."""
+    kind, size = fit[2], fit[3]
+    if kind == "bias":
+        return abs(size)
+    if kind == "drift":
+        return float(np.max(np.abs(_line(t, e, s2)[0])))
+    if kind == "scale":
+        return float(np.max(np.abs((size - 1.0) * h)))
+    return size  # spikes: their rms
 
 
 def _roughness_factor(t: np.ndarray, z: np.ndarray, r: float) -> float | None:
@@ -168,7 +205,12 @@ def _drift(t: np.ndarray, e: np.ndarray, s2: np.ndarray) -> tuple[float, int, st
 
 
 def second_look(
-    t_s: np.ndarray, z: np.ndarray, h: np.ndarray, s2: np.ndarray, noise_sigma: float
+    t_s: np.ndarray,
+    z: np.ndarray,
+    h: np.ndarray,
+    s2: np.ndarray,
+    noise_sigma: float,
+    band: float | None = None,
 ) -> FailureName:
     """A bias, a gain or a drift: what the readings since a declaration show over seconds.
 
@@ -180,7 +222,9 @@ def second_look(
     the channel by more than :data:`DRIFT_SIGMAS` prediction sigmas, away from zero (the slope
     has the sign of the line's mean: the prediction's pull toward the reading only shrinks the
     residual); its slope over seconds is the drift's rate, where the first second's also
-    holds the re-based prediction's settling.
+    holds the re-based prediction's settling. Where the best of the three stays within
+    ``band`` (:func:`classify_failure`'s) the seconds show no bias, gain or drift, and every
+    kind is weighed again (a spike train whose first second had no spike).
     """
     t, z, h, s2 = (np.asarray(a, dtype=float) for a in (t_s, z, h, s2))
     n = z.size
@@ -193,6 +237,8 @@ def second_look(
     if abs(slope) * float(t[-1] - t[0]) > DRIFT_SIGMAS * prediction_sigma and mean * slope > 0.0:
         candidates.append((_gaussian(e, fitted, s2), 2, "drift", slope))
     best = max(candidates, key=lambda c: c[0] - 0.5 * c[1] * math.log(n))
+    if band is not None and _deviation(t, e, h, s2, best) <= band:
+        return classify_failure(t, z, h, s2, noise_sigma)
     return FailureName(best[2], best[3])
 
 
@@ -251,6 +297,10 @@ class FaultNamer:
     second_look_s : float
         When a bias, a drift or a noise is looked at again (:data:`SECOND_LOOK_S`); at most
         ``window_s``: never.
+    bands : ndarray, shape (6,), optional
+        What a healthy channel may read off the truth (``DETECTABLE_SIGMAS`` band sigmas of
+        the spec sheet). A first second whose best name stays within it is named over the
+        second look's seconds instead (None: always named at the first second).
     """
 
     def __init__(
@@ -258,8 +308,10 @@ class FaultNamer:
         noise_sigmas: np.ndarray,
         window_s: float = NAMING_WINDOW_S,
         second_look_s: float = SECOND_LOOK_S,
+        bands: np.ndarray | None = None,
     ) -> None:
         self.noise_sigmas = np.asarray(noise_sigmas, dtype=float)
+        self.bands = None if bands is None else np.asarray(bands, dtype=float)
         self.window_s = window_s
         self.second_look_s = second_look_s
         self._pending: dict[int, tuple[int, float]] = {}  # channel -> mode slot, declared at
@@ -314,18 +366,25 @@ class FaultNamer:
             if looking_again:
                 first = self._first[i]
                 self.cancel(i)
+                if first.kind == UNSEEN:  # named now, by the seconds, whatever they show
+                    out.append((i, classify_failure(t, zs, hs, s2, sigma)))
+                    continue
                 if first.kind == "noise":  # its factor over seconds, not one second's
                     factor = _roughness_factor(t, zs, sigma**2)
                     if factor is not None:
                         out.append((i, FailureName("noise", factor)))
                     continue
-                again = second_look(t, zs, hs, s2, sigma)
+                band = None if self.bands is None else float(self.bands[i])
+                again = second_look(t, zs, hs, s2, sigma, band)
                 if again.kind != first.kind or again.kind == "drift":
                     out.append((i, again))
                 continue
-            name = classify_failure(t, zs, hs, s2, sigma)
-            out.append((i, name))
-            if name.kind in ("bias", "drift", "noise") and self.second_look_s > self.window_s:
+            looks_again = self.second_look_s > self.window_s
+            band = float(self.bands[i]) if looks_again and self.bands is not None else None
+            name = classify_failure(t, zs, hs, s2, sigma, band)
+            if name.kind != UNSEEN:
+                out.append((i, name))
+            if name.kind in ("bias", "drift", "noise", UNSEEN) and looks_again:
                 self._first[i] = name
             else:
                 self.cancel(i)

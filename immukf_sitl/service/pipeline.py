@@ -36,7 +36,7 @@ from immukf_sitl.estimation.fault_modes import FaultMode, failure_marginals
 from immukf_sitl.models.aero import AeroModel
 from immukf_sitl.models.earth import LocalGeodetic, NedOrigin
 from immukf_sitl.models.params import Actuators, AircraftParams
-from immukf_sitl.models.sensors import IMU_PERIOD_S, SensorSpec
+from immukf_sitl.models.sensors import DETECTABLE_SIGMAS, IMU_PERIOD_S, SensorSpec
 from immukf_sitl.models.servo_map import ControlMap
 from immukf_sitl.samples import ActuatorSample, GpsSample, ImuSample
 from immukf_sitl.service.alignment import NavSolution, align
@@ -195,7 +195,8 @@ class EstimatorPipeline:
         self.estimator: Estimator | None = None
         self.estimate: VariantEstimate | None = None
         self.detector: FaultDetector | DeclaredSetDetector | None = None
-        self._namer = FaultNamer(self.config.sensors.imu.sigmas)
+        imu = self.config.sensors.imu
+        self._namer = FaultNamer(imu.sigmas, bands=DETECTABLE_SIGMAS * imu.band_sigmas)
         #: SERVO_OUTPUT_RAW -> controls: the params file's channels, or an autopilot's servo map
         self.control_map: Actuators | ControlMap = params.actuators
         self._controls: np.ndarray | None = None
