@@ -10,6 +10,7 @@ from scipy import stats
 
 from immukf_sitl.experiments.observability import (
     MIN_NOISE_FACTOR,
+    SUSTAINED_S,
     channel_band_sigma,
     channel_sigma,
     fault_deviation,
@@ -37,6 +38,41 @@ def test_first_time_beyond_the_band():
     assert first_observable_time_s(t, values, 3.0, sigma=0.1) is None
     with pytest.raises(ValueError, match="equal 1-D shapes"):
         first_observable_time_s(t, values[:3], 0.0, sigma=0.1)
+
+
+def test_a_crossing_counts_once_it_has_lasted_the_hold():
+    """Beyond the band for the hold: observable at the stretch's start, not before."""
+    t = np.arange(0.0, 1.0, 0.01)
+    values = np.zeros(t.size)
+    values[10] = 1.0  # one sample at 0.10 s
+    values[30:40] = 1.0  # ten samples from 0.30 s: they hold 0.1 s
+    values[60:72] = -1.0  # twelve from 0.60 s
+    assert first_observable_time_s(t, values, 0.0, sigma=0.1) == pytest.approx(0.10)
+    assert first_observable_time_s(t, values, 0.0, sigma=0.1, hold_s=0.1) == pytest.approx(0.30)
+    assert first_observable_time_s(t, values, 0.0, sigma=0.1, hold_s=0.11) == pytest.approx(0.60)
+    assert first_observable_time_s(t, values, 0.0, sigma=0.1, hold_s=0.2) is None
+    tail = np.where(t >= 0.85, 1.0, 0.0)  # beyond it when the data ends, at 0.99 s
+    assert first_observable_time_s(t, tail, 0.0, sigma=0.1, hold_s=0.1) == pytest.approx(0.85)
+    assert first_observable_time_s(t, tail, 0.0, sigma=0.1, hold_s=0.2) is None
+    with pytest.raises(ValueError, match="hold_s"):
+        first_observable_time_s(t, values, 0.0, sigma=0.1, hold_s=-1.0)
+
+
+def test_a_gain_is_observable_once_sustained_and_a_spike_on_its_sample():
+    """A gust's one-sample jolt times a gain is not a fault to see; a spike lasts one sample."""
+    t = np.arange(0.0, 3.0, 0.01)
+    imu = np.zeros((t.size, 6))
+    imu[:, 2] = -9.81
+    imu[150, 1] = 2.0  # a one-sample lateral jolt at 1.5 s
+    imu[(t >= 2.0) & (t < 2.5), 1] = 2.0  # a half-second sideslip from 2 s
+    spec = ImuSpec()
+    gain = FaultSpec(t_s=1.0, channels=("y",), kind="scale", value=0.5)
+    assert fault_observable_time_s(gain, t, imu, spec, hold_s=0.0) == pytest.approx(1.5)
+    assert fault_observable_time_s(gain, t, imu, spec) == pytest.approx(2.0)
+    assert SUSTAINED_S < 0.5
+    spikes = FaultSpec(t_s=1.0, channels=("y",), kind="spikes", value=5.0, rate_hz=2.0)
+    first = fault_observable_time_s(spikes, t, imu, spec)
+    assert first is not None and first < 1.0 + 3.0 / 2.0  # the first spikes, not a stretch
 
 
 def test_channel_sigmas():
