@@ -83,9 +83,11 @@ from immukf_sitl.service.detection import DetectionEvent, DetectorConfig, Signat
 #: a declared channel's (drift rate, gain) by the kind it was named (None: learnt), in the
 #: states' units: a bias, a drift, a noise or spikes leave the sensor's gain alone (g = 0); a
 #: gain learns its own, and a zero or a stuck reading learns -1 (it reads nothing of the
-#: state). Drift rates stay learnt: a drift named a bias is common (docs/design)
+#: state). A bias does not drift; a drift named a bias is common, but it is one the slow test
+#: declared (a step shows in the probabilities), whose drift rate stays learnt
+#: (:meth:`DeclaredSetDetector.error_holds`; docs/design)
 _NAMED_ERRORS: dict[str, tuple[float | None, float | None]] = {
-    "bias": (None, 0.0),
+    "bias": (0.0, 0.0),
     "drift": (None, 0.0),
     "noise": (None, 0.0),
     "spikes": (None, 0.0),
@@ -188,6 +190,7 @@ class DeclaredSetDetector:
         self._failure: dict[int, NamedFailure] = {}
         self._read_scales: np.ndarray | None = None
         self._holds: dict[int, tuple[float | None, float | None]] = {}
+        self._slowly: set[int] = set()  # declared channels the slow test declared
         self._zero_offset_since: dict[int, float] = {}  # declared channel -> reads healthy since
         self._consistent = float(chi2.ppf(config.signature_quantile, 1))
         q = config.signature_quantile
@@ -228,6 +231,10 @@ class DeclaredSetDetector:
         :meth:`~immukf_sitl.estimation.fault_modes.ChannelOffset.holding`: a channel named a
         bias, a drift, a noise or spikes reads its rate at the sensor's own gain. Learnt, a
         declared gyro's gain took up the model's error of the rate it predicts in turbulence.
+        A channel named a bias does not drift either, unless the slow test declared it: a
+        failure that grew too slowly for the probabilities is a drift, whatever its first
+        seconds looked like. Learnt, a biased gyro's drift rate let its offset wander by
+        hundredths of a rad/s, and the base lost the attitude the gyro was read for.
         """
         return dict(self._holds)
 
@@ -239,7 +246,8 @@ class DeclaredSetDetector:
             if failure.kind == "noise" and failure.size is not None and failure.size > 1.0:
                 scales[channel] = failure.size**2
             if failure.kind in _NAMED_ERRORS:
-                self._holds[channel] = _NAMED_ERRORS[failure.kind]
+                drift, gain = _NAMED_ERRORS[failure.kind]
+                self._holds[channel] = (None if channel in self._slowly else drift, gain)
         self._read_scales = scales if (scales > 1.0).any() else None
 
     def _change(self, channel: int) -> None:
@@ -256,6 +264,7 @@ class DeclaredSetDetector:
         self._life.pop(channel, None)
         self._failure.pop(channel, None)
         self._zero_offset_since.pop(channel, None)
+        self._slowly.discard(channel)
         if self._bits >> channel & 1:
             self._start_latch(channel)
         self._reread()
@@ -398,6 +407,7 @@ class DeclaredSetDetector:
             j, nats = slow
             mode = FaultMode(1 << (j - 1))
             self._change(j - 1)
+            self._slowly.add(j - 1)
             p = -math.expm1(-nats)  # the window passes by chance with at most exp(-nats)
             return [DetectionEvent("detected", mode, t_s, p, declared_after=self._after())]
         return self._unisolated(t_s, probabilities)
