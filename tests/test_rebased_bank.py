@@ -489,3 +489,33 @@ def test_a_channel_named_noisy_is_read_at_its_noise_by_the_modes_that_take_it_fo
             expected[j, 3] = 63.0 * r_p
     assert on_p.modes[4] == FaultMode(0)  # the recovery: reads p at R
     np.testing.assert_allclose(grown, expected, rtol=1e-9, atol=1e-12 * r_p)
+
+
+def test_a_rebased_bank_tests_a_further_failure_with_a_history_and_a_recovery_as_the_textbook():
+    # the bank about p: the five slots that add a channel mix their history rows with floored
+    # weights (eqs. 6-8, hand-computed), the recovery slot ("none") and the base as the textbook
+    import dataclasses
+
+    bank = build_estimator(
+        "imm", load_aircraft_params(), NedOrigin(47.4, 8.5, 150.0),
+        filter_model=RealAirModel(fault_signature="untrusted"),
+    ).rebased(P)  # fmt: skip
+    imm, n = bank.imm, bank.imm.ukf.process.nx
+    rng = np.random.default_rng(11)
+    means = rng.normal(0.0, 0.01, (7, n))
+    covs = np.tile(np.eye(n) * 1e-4, (7, 1, 1))
+    mu = np.array([1.0 - 6e-7, *[1e-7] * 6])  # every slot but the base far below the floor
+    start = imm.initial_estimate(0.0, means[0], covs[0], mu)
+    previous = dataclasses.replace(start, mode_means=means, mode_covs=covs)
+    mu = np.exp(previous.log_mode_probabilities)
+    _, mixed, _ = imm._mix(previous)
+    rows = bank.dynamics.history_states()
+    T = imm.transition
+    for j, mode in enumerate(bank.modes):
+        further = bool(mode.bits & ~P.bits)
+        seen = mu.copy()
+        if further:
+            seen[j] = max(seen[j], bank.filter_model.history_floor)
+        weights = T[:, j] * seen / (T[:, j] @ seen)  # eq. (7)'s mu_{i|j}
+        np.testing.assert_allclose(mixed[j, rows], weights @ means[:, rows], rtol=1e-6, atol=1e-7)
+        assert (weights[j] > 0.5) == (further or j == 0)  # a further slot keeps its own history

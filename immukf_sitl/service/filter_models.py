@@ -327,10 +327,10 @@ class FilterModel(ABC):
     An untrusted mode reads its newly failed channel through an offset state
     (:class:`~immukf_sitl.estimation.fault_modes.ChannelOffset`) that walks by
     ``offset_walk_sigmas`` gyro noise sigmas a step (0.01: a bias, held once learnt; in full
-    scales, 0.41 as many of an accelerometer's). Until a first declaration an untrusted bank's
-    fault modes keep their own history where the IMM mixes their states, as if their probability
-    were at least ``history_floor`` (0: the textbook mixing;
-    :class:`~immukf_sitl.estimation.imm.ImmEstimator`).
+    scales, 0.41 as many of an accelerometer's). An untrusted bank's modes that add a failure
+    to the declared set keep their own history where the IMM mixes their states, as if their
+    probability were at least ``history_floor`` (0: the textbook mixing;
+    :class:`~immukf_sitl.estimation.imm.ImmEstimator`); a recovery slot mixes as the textbook.
     """
 
     name: ClassVar[str]
@@ -590,13 +590,13 @@ class RealAirModel(FilterModel):
     the chain's stationary distribution would be 1/7 per mode, a 6-in-7 belief that some sensor
     is dead at power-on.
 
-    Until a first declaration an untrusted bank's fault modes keep their own history
-    (``history_floor`` 1e-5): each takes 1 % of its start from the base a step, so it is a
-    filter that has not read its channel for about a second, and a failure that grows too slowly
-    for the base to notice (a drift, which the base's bias and gust states follow) shows against
-    it, mostly at the GPS fixes. Their offsets walk by ``offset_walk_sigmas`` 0.001 gyro sigmas
-    a step (a mode with a history of its own fits less of the airframe's model error as the
-    channel's offset).
+    An untrusted bank's modes that add a failure keep their own history (``history_floor``
+    1e-5), in a bank re-based on a declared set too: each takes 1 % of its start from the base
+    a step, so it is a filter that has not read its channel for about a second, and a failure
+    that grows too slowly for the base to notice (a drift, which the base's bias and gust states
+    follow) shows against it, mostly at the GPS fixes. Their offsets walk by
+    ``offset_walk_sigmas`` 0.001 gyro sigmas a step (a mode with a history of its own fits less
+    of the airframe's model error as the channel's offset).
     """
 
     name: ClassVar[str] = "real-air"

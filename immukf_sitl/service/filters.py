@@ -603,21 +603,23 @@ def _assemble(
 ) -> AircraftEstimator:
     """The bank of ``ukf`` over ``modes``: its chain (eq. 3), evidence and output models."""
     floor = filter_model.probability_floor if len(modes) > 1 else 0.0
-    # the fault modes keep a history of their own until a first declaration; in a re-based
-    # bank they mix as the textbook does: a recovery slot with a history followed a dead gyro's
-    # zeros and took the lead, and slots without a further channel won at the fixes once the
-    # base read a declared drifting gyro (docs/design/detection-and-tuning.md)
+    # the modes that add a failure keep a history of their own, so a second failure is tested
+    # as a first one is; a recovery slot mixes as the textbook does (with a history it followed
+    # a dead gyro's zeros and took the lead; docs/design/detection-and-tuning.md)
     history = 0.0
-    left_out = None
-    if len(modes) > 1 and filter_model.fault_signature == "untrusted" and modes[0].bits == 0:
+    slots = left_out = None
+    untrusted = filter_model.fault_signature == "untrusted"
+    if len(modes) > 1 and untrusted and filter_model.history_floor > 0.0:
         history = filter_model.history_floor
-        # a mode with a history of its own is also scored against the base on the GPS fix
-        # alone (the slow-evidence test of service/declared_set.py)
-        left_out = np.zeros((len(modes), N_IMU), dtype=bool)
-        left_out[1:] = True
+        slots = np.array([bool(m.bits & ~modes[0].bits) for m in modes])
+        if modes[0].bits == 0:
+            # each is also scored against the base on the GPS fix alone (the slow-evidence
+            # test of service/declared_set.py, while nothing is declared)
+            left_out = np.zeros((len(modes), N_IMU), dtype=bool)
+            left_out[1:] = True
     imm = ImmEstimator(
         ukf, filter_model.transition(modes), floor, dynamics.gate(), history,
-        dynamics.history_states(), rest_left_out=left_out if history > 0.0 else None,
+        dynamics.history_states(), slots, rest_left_out=left_out,
     )  # fmt: skip
     imu_model, imu_gps_model = aero_measurement_models(
         dynamics.flown, modes, sensors, filter_model.fault_signature, dynamics.offset
