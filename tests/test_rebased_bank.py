@@ -511,11 +511,10 @@ def test_a_rebased_bank_tests_a_further_failure_with_a_history_and_a_recovery_as
     _, mixed, _ = imm._mix(previous)
     rows = bank.dynamics.history_states()
     T = imm.transition
-    for j, mode in enumerate(bank.modes):
-        further = bool(mode.bits & ~P.bits)
-        seen = mu.copy()
-        if further:
-            seen[j] = max(seen[j], bank.filter_model.history_floor)
+    added = np.array([bool(m.bits & ~P.bits) for m in bank.modes])
+    floored = np.where(added, np.maximum(mu, bank.filter_model.history_floor), mu)
+    for j, further in enumerate(added):
+        seen = floored if further else mu
         weights = T[:, j] * seen / (T[:, j] @ seen)  # eq. (7)'s mu_{i|j}
         np.testing.assert_allclose(mixed[j, rows], weights @ means[:, rows], rtol=1e-6, atol=1e-7)
         assert (weights[j] > 0.5) == (further or j == 0)  # a further slot keeps its own history
