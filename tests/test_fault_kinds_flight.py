@@ -5,22 +5,17 @@ the real-air model in wind; docs/design/detection-and-tuning.md lists what they 
 
 from __future__ import annotations
 
-import dataclasses
-from pathlib import Path
-
 import pytest
+from flights import fly
 
-from immukf_sitl.experiments.inprocess import run_inprocess
-from immukf_sitl.scenario import ExpectSpec, FaultSpec, load_scenario
+from immukf_sitl.scenario import ExpectSpec, FaultSpec
 from immukf_sitl.service.filter_models import PaperModel, RealAirModel
-from immukf_sitl.service.pipeline import PipelineConfig
 
 # flies JSBSim and the estimator
 pytestmark = pytest.mark.slow
 
-SCENARIOS = Path(__file__).resolve().parents[1] / "scenarios"
-TWIN = (SCENARIOS / "q_gyro_zeroed.yaml", PaperModel)
-WINDY = (SCENARIOS / "q_gyro_zeroed_windy.yaml", RealAirModel)
+TWIN = ("q_gyro_zeroed.yaml", PaperModel)
+WINDY = ("q_gyro_zeroed_windy.yaml", RealAirModel)
 
 
 @pytest.mark.parametrize(
@@ -42,13 +37,9 @@ WINDY = (SCENARIOS / "q_gyro_zeroed_windy.yaml", RealAirModel)
     ids=["bias", "stuck", "drift", "zero", "scale", "noise", "spikes"],
 )
 def test_a_kind_is_identified_and_named(fault, duration_s, size, flight):
-    path, model = flight
-    base = load_scenario(path)
-    scenario = dataclasses.replace(base, faults=(fault,), expect=ExpectSpec(fault.channels[0], 1.0))
-    config = PipelineConfig(
-        filter_model=model(fault_signature="untrusted"), sensors=base.sensors.spec_sheet()
-    )
-    summary = run_inprocess(scenario, config, duration_s=duration_s).summary().to_json()
+    name, model = flight
+    expect = ExpectSpec(fault.channels[0], 1.0)
+    summary = fly(name, model(fault_signature="untrusted"), (fault,), duration_s, expect)
     (outcome,) = summary["faults"]
     assert summary["false_alarms"] == 0, summary["detections"]
     assert outcome["detection_delay_s"] is not None and outcome["detection_delay_s"] <= 1.0
