@@ -681,8 +681,9 @@ def _scoring_inputs(seed: int):
 @pytest.mark.parametrize("seed", [1, 2, 3])
 def test_failure_scoring_compiled_equals_interpreted(seed):
     pairs, nu, cov, z, previous, offset, limits, weights, widths, spreads = _scoring_inputs(seed)
-    terms = failure_terms(pairs, nu, cov, z, previous, offset, limits)
-    reference = failure_terms.py_func(pairs, nu, cov, z, previous, offset, limits)
+    held = (np.random.default_rng(seed + 10).uniform(size=6) < 0.5).astype(float)
+    terms = failure_terms(pairs, nu, cov, z, previous, offset, limits, held)
+    reference = failure_terms.py_func(pairs, nu, cov, z, previous, offset, limits, held)
     np.testing.assert_allclose(terms, reference, rtol=SAME, atol=0.0)
     assert 0 < terms[:, 3].sum() < len(pairs)  # seen and unseen dead parts both exercised
     base = np.random.default_rng(seed).normal(-40.0, 5.0, len(weights))

@@ -375,7 +375,10 @@ def test_the_unexplained_spread_scores_the_modes_before_and_after_a_declaration(
     seen = []
 
     class Recorder:
-        def step(self, previous, t_next_s, u, z, process=None, previous_z=None, score_var=None):
+        def step(
+            self, previous, t_next_s, u, z, process=None, previous_z=None, score_var=None,
+            held_beyond_chance=None,
+        ):  # fmt: skip
             seen.append(score_var)
             raise _Scored
 

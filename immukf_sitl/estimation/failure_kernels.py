@@ -31,6 +31,7 @@ def _log_normal(x: float, var: float) -> float:
 def failure_terms(
     pairs: np.ndarray, innovation: np.ndarray, innovation_cov: np.ndarray, z: np.ndarray,
     previous_z: np.ndarray, offset_reading: np.ndarray, limits: np.ndarray,
+    held_beyond_chance: np.ndarray,
 ) -> np.ndarray:  # fmt: skip
     """The densities of each failed pair, ``(k, 5)``.
 
@@ -49,6 +50,10 @@ def failure_terms(
     limits : ndarray, shape (8,)
         ``R`` of the six channels, then the observability threshold (sigmas) and the stuck
         reading's spread (noise sigmas).
+    held_beyond_chance : ndarray, shape (6,)
+        1.0 where the channel has repeated its reading exactly for longer than a healthy one
+        does by chance (:class:`~immukf_sitl.estimation.held_readings.RepeatRuns`): the stuck
+        part is seen then, however near the prediction the held value sits.
 
     Returns
     -------
@@ -57,8 +62,9 @@ def failure_terms(
         included), the dead part ``N(z; 0, R)``, the stuck part (the reading equal to the
         previous one to ``stuck_sigmas``), and whether each of the two was seen (1.0 or 0.0). A
         part that cannot be seen (the mode's own prediction within the threshold of what the
-        part reads, and the reading not ruling it out) scores as the reference mode scores the
-        channel: it says nothing for or against the mode.
+        part reads, the reading not ruling it out, and for the stuck part no run of repeats
+        beyond chance) scores as the reference mode scores the channel: it says nothing for or
+        against the mode.
     """
     k = pairs.shape[0]
     n_sigma, stuck_sigmas = limits[6], limits[7]
@@ -79,7 +85,9 @@ def failure_terms(
         held = previous_z[i]
         stuck_var = stuck_sigmas * stuck_sigmas * r
         stuck_seen = math.isfinite(held) and (
-            abs(own - held) > gate or abs(reading - held) > n_sigma * math.sqrt(stuck_var)
+            abs(own - held) > gate
+            or abs(reading - held) > n_sigma * math.sqrt(stuck_var)
+            or held_beyond_chance[i] > 0.5
         )
         log_stuck = _log_normal(reading - held, stuck_var) if stuck_seen else log_reference
         out[f, 0] = log_any

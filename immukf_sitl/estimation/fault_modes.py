@@ -708,6 +708,7 @@ class ObservabilityGate:
         weights: np.ndarray | None = None,
         previous_z: np.ndarray | None = None,
         widths: np.ndarray | None = None,
+        held_beyond_chance: np.ndarray | None = None,
     ) -> tuple[np.ndarray, None]:
         """:meth:`__call__` in the protocol the IMM calls (no weights)."""
         return self(t_s, predicted_mean, innovation, innovation_cov, z, u, log_likelihood), None
@@ -820,6 +821,7 @@ class DeadOrAnyEvidence:
         innovation_cov: np.ndarray,
         z: np.ndarray,
         previous_z: np.ndarray | None = None,
+        held_beyond_chance: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray] | None:
         """The pairs and their densities (:func:`~.failure_kernels.failure_terms`), or None."""
         pairs = self._pairs
@@ -831,6 +833,7 @@ class DeadOrAnyEvidence:
             learnt = predicted_mean[modes, self.offset.index + channels]
             offset_reading = self.offset.gain[channels, modes] * learnt
         held = np.full(N_IMU, np.nan) if previous_z is None else previous_z[:N_IMU]
+        runs = np.zeros(N_IMU) if held_beyond_chance is None else held_beyond_chance
         t = failure_terms(
             pairs,
             np.ascontiguousarray(innovation, dtype=float),
@@ -839,6 +842,7 @@ class DeadOrAnyEvidence:
             np.ascontiguousarray(held, dtype=float),
             offset_reading,
             self._limits,
+            np.ascontiguousarray(runs, dtype=float),
         )
         return pairs, t
 
@@ -930,6 +934,7 @@ class DeadOrAnyEvidence:
         weights: np.ndarray | None = None,
         previous_z: np.ndarray | None = None,
         widths: np.ndarray | None = None,
+        held_beyond_chance: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray | None]:
         """The modes' log-likelihoods, and each mode's weights of how each channel failed.
 
@@ -947,7 +952,9 @@ class DeadOrAnyEvidence:
         """
         if weights is None or self.offset is None:
             return self(t_s, predicted_mean, innovation, innovation_cov, z, u, log_likelihood), None
-        terms = self._terms(predicted_mean, innovation, innovation_cov, z, previous_z)
+        terms = self._terms(
+            predicted_mean, innovation, innovation_cov, z, previous_z, held_beyond_chance
+        )
         if terms is None:
             return log_likelihood, weights
         pairs, t = terms

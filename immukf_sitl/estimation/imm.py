@@ -359,6 +359,7 @@ class ImmEstimator:
         process: ProcessModel | None = None,
         previous_z: np.ndarray | None = None,
         score_var: np.ndarray | None = None,
+        held_beyond_chance: np.ndarray | None = None,
     ) -> ImmEstimate:
         """One IMM cycle from ``previous`` (time ``k``) to ``t_next_s`` (``k+1``), control ``u``.
 
@@ -366,7 +367,9 @@ class ImmEstimator:
         bank's estimate at ``k`` (from :meth:`initial_estimate` or the previous step): mixing
         (eqs. 6-8), the mode-matched filters (eqs. 9-25), the mode probabilities (eq. 26) and
         the combination (eqs. 27-28). ``previous_z`` (the measurement at ``k``, if known) lets
-        the evidence tell a reading that did not move. ``score_var`` (one variance per leading
+        the evidence tell a reading that did not move, and ``held_beyond_chance`` (per IMU
+        channel, :class:`~immukf_sitl.estimation.held_readings.RepeatRuns`) one that has not
+        moved for longer than chance explains. ``score_var`` (one variance per leading
         output) is what the model's innovations show beyond their covariance: added to ``S``
         where the modes are scored (eq. 25 and the evidence), not in the gain. Returns the
         bank's estimate at ``t_next_s``.
@@ -402,7 +405,7 @@ class ImmEstimator:
             log_likelihood, weights = self.evidence.score(
                 t_next_s, filtered.predicted_mean, filtered.innovation,
                 scored_cov, measurement.z, u, log_likelihood, weights, previous_z,
-                widths,
+                widths, held_beyond_chance,
             )  # fmt: skip
         rest: tuple[np.ndarray | None, np.ndarray | None, int] = (None, None, 0)
         if (

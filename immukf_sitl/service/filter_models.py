@@ -303,10 +303,12 @@ class ModelDynamics(ABC):
         controls_pair: np.ndarray,
         z: Measurement,
         previous_z: np.ndarray | None = None,
+        held_beyond_chance: np.ndarray | None = None,
     ) -> tuple[ImmEstimate, TurbulenceEstimate | None]:
         """One bank step (eqs. 6-28) and what the model learnt of the air from it.
 
-        ``previous_z``: the IMU reading of the step before (a stuck channel repeats it).
+        ``previous_z``: the last IMU reading before this one (a stuck channel repeats it);
+        ``held_beyond_chance``: where it has repeated for longer than chance explains.
         """
 
     @abstractmethod
@@ -548,9 +550,13 @@ class _PaperDynamics(ModelDynamics):
         controls_pair: np.ndarray,
         z: Measurement,
         previous_z: np.ndarray | None = None,
+        held_beyond_chance: np.ndarray | None = None,
     ) -> tuple[ImmEstimate, None]:
         """The bank's step."""
-        bank = imm.step(previous, t_next_s, controls_pair, z, previous_z=previous_z)
+        bank = imm.step(
+            previous, t_next_s, controls_pair, z, previous_z=previous_z,
+            held_beyond_chance=held_beyond_chance,
+        )  # fmt: skip
         return self._idle_offsets(bank), None
 
     def wind_ned_mps(self, mean: np.ndarray) -> None:
@@ -789,11 +795,15 @@ class _RealAirDynamics(ModelDynamics):
         controls_pair: np.ndarray,
         z: Measurement,
         previous_z: np.ndarray | None = None,
+        held_beyond_chance: np.ndarray | None = None,
     ) -> tuple[ImmEstimate, TurbulenceEstimate | None]:
         """The bank's step at the air's scale, then the scale learnt from its innovations."""
         adapter = self.adapter
         if adapter is None or air is None:
-            bank = imm.step(previous, t_next_s, controls_pair, z, previous_z=previous_z)
+            bank = imm.step(
+                previous, t_next_s, controls_pair, z, previous_z=previous_z,
+                held_beyond_chance=held_beyond_chance,
+            )  # fmt: skip
             return self._idle_offsets(bank), air
         process = adapter.process_at(air.scale)
         score_var = None
@@ -805,7 +815,10 @@ class _RealAirDynamics(ModelDynamics):
             n_gps = 0 if z is None else z.model.nz - N_IMU
             if n_gps > 0:  # a fix: its channels against the spread the base's fixes show
                 score_var = np.concatenate([score_var, air.gps_unexplained_var(n_gps)])
-        bank = imm.step(previous, t_next_s, controls_pair, z, process, previous_z, score_var)
+        bank = imm.step(
+            previous, t_next_s, controls_pair, z, process, previous_z, score_var,
+            held_beyond_chance,
+        )  # fmt: skip
         bank = self._idle_offsets(bank)
         if bank.updated and bank.innovations is not None and bank.innovation_var is not None:
             if bank.innovations.shape[1] > N_IMU:

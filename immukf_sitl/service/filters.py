@@ -42,6 +42,7 @@ from immukf_sitl.estimation import (
     fault_mode_output,
 )
 from immukf_sitl.estimation.fault_modes import N_IMU, reference_slots
+from immukf_sitl.estimation.held_readings import RepeatRuns
 from immukf_sitl.estimation.ukf import NoiseForm
 from immukf_sitl.models.aero import AeroModel
 from immukf_sitl.models.augmented import (
@@ -192,6 +193,9 @@ class VariantEstimate:
     turbulence : TurbulenceEstimate or None
         The air's roughness learnt so far (the real-air model), the scale the next step's
         turbulence noise is drawn at; None for a model without turbulence states.
+    repeats : RepeatRuns or None
+        The IMU channels' runs of exactly repeated readings (the aerodynamic variants); None:
+        nothing read yet.
     """
 
     t_s: float
@@ -199,6 +203,7 @@ class VariantEstimate:
     controls: np.ndarray
     imu: np.ndarray
     turbulence: TurbulenceEstimate | None = None
+    repeats: RepeatRuns | None = None
 
     @property
     def mode_probabilities(self) -> np.ndarray:
@@ -508,10 +513,14 @@ class AircraftEstimator(_Bank):
         )
         controls = np.asarray(controls, dtype=float)
         pair = np.array([previous.controls, controls])  # u(k), u(k+1)
+        before = previous.repeats if previous.repeats is not None else RepeatRuns.start()
+        repeats = before.after(imu, self.sensors.imu.ranges)
         bank, air = self.dynamics.step(
-            self.imm, previous.filter, previous.turbulence, t_next_s, pair, z, previous.imu
-        )
-        return VariantEstimate(t_next_s, bank, controls, imu, air)  # the IMU drives nothing here
+            self.imm, previous.filter, previous.turbulence, t_next_s, pair, z,
+            before.last, repeats.beyond_chance(),
+        )  # fmt: skip
+        # the IMU drives nothing here
+        return VariantEstimate(t_next_s, bank, controls, imu, air, repeats)
 
     @cached_property
     def _healthy_masks(self) -> np.ndarray:
