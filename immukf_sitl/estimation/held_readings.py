@@ -74,5 +74,7 @@ class RepeatRuns:
 
     def beyond_chance(self) -> np.ndarray:
         """``(6,)``: 1.0 where the current run is longer than a healthy channel gives by chance."""
+        if not self.run.any():  # the common case at 100 Hz: no channel repeats at all
+            return np.zeros(self.run.shape)
         rate = (self.repeats + 1.0) / (self.pairs + 2.0)
         return np.where(self.run * np.log(rate) < _LOG_HELD_CHANCE, 1.0, 0.0)
