@@ -90,6 +90,31 @@ def test_one_outlier_of_the_base_does_not_declare_a_channel():
     assert [(e.kind, e.mode.name) for e in events] == [("detected", "q")]
 
 
+@pytest.mark.parametrize(("evidence", "declared"), [(False, False), (True, True)])
+def test_a_noisy_channel_the_base_cannot_explain_is_declared_with_sustained_evidence(
+    evidence, declared
+):
+    """Slot q leads at 0.99 with its offset at zero (a noise has none) and the base reads q at
+    three times its predicted sigma: declared once the slot out-scores the base sample after
+    sample (its density of N(0, 9 S) against the base's N(0, S)), not on the spread alone."""
+    rng = np.random.default_rng(4)
+    det = DeclaredSetDetector(DetectorConfig(dwell_s=0.1, settle_s=0.0), 0.0)
+    events = []
+    for k in range(100):
+        nu, var = _innovations(rng)
+        nu[0, Q] *= 3.0  # the base's residual of a noise of factor 3 over its prediction
+        ratio = norm.logpdf(nu[0, Q], scale=3.0 * math.sqrt(var[0, Q])) - norm.logpdf(
+            nu[0, Q], scale=math.sqrt(var[0, Q])
+        )
+        scores = _q_evidence(ratio if evidence else 0.0)
+        events += det.update(
+            k * 0.01, _probs(5, 0.99), _imu(rng), SIGMAS, (nu, var), log_likelihoods=scores
+        )
+    assert [(e.kind, e.mode.name) for e in events] == ([("detected", "q")] if declared else [])
+    if declared:
+        assert events[0].t_s <= 0.3  # the dwell and one window
+
+
 @pytest.mark.parametrize(("ratio", "declared"), [(0.35, False), (0.38, True)])
 def test_the_sustained_evidence_is_the_signature_quantile_over_the_window(ratio, declared):
     """Constant evidence: 19 of the 20 samples must carry ln(q / (1 - q)) = 6.907 nats."""

@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from scipy.stats import chi2
 
 from immukf_sitl.estimation import FaultMode, single_fault_modes
 from immukf_sitl.options import FilterOptions
@@ -179,6 +180,53 @@ def test_the_offset_test_errs_towards_consistent_on_independent_residuals():
     for _ in range(cfg.signature_window):
         window.push(None, np.full((7, 6), 3.0**2))  # an offset held at 3 sigma: beyond 2.58
     assert window.offset_beyond(5, q)
+
+
+def test_the_base_test_is_the_sum_without_its_largest_sample_against_chi_square():
+    """Mode 0's residuals on a channel: their sum without the largest, against chi2(n - 1)."""
+    cfg = DetectorConfig(signature_window=20, signature_quantile=0.99)
+    q = np.arange(6) == 4
+    limit = chi2.ppf(0.99, 19)
+    for level, expected in ((limit / 19 * 1.001, True), (limit / 19 * 0.999, False)):
+        window = SignatureWindow(cfg)
+        for _ in range(cfg.signature_window):
+            residuals = np.zeros((7, 6))
+            residuals[0, 4] = level
+            residuals[5, 4] = 1e6  # the fault mode's own residual is not what is judged
+            window.push(None, residuals)
+        assert window.base_inconsistent(q) is expected
+    window = SignatureWindow(cfg)
+    window.push(None, np.full((7, 6), 1e6))
+    assert not window.base_inconsistent(q)  # one sample is no sum without its largest
+
+
+def test_the_base_test_errs_towards_consistent_on_a_healthy_channel():
+    """Twenty chi-square(1) residuals: flagged as the order statistics say, at most 1 - q."""
+    cfg = DetectorConfig(signature_window=20, signature_quantile=0.99)
+    rng = np.random.default_rng(8)
+    q = np.arange(6) == 4
+    n = 4000
+    draws = rng.normal(0.0, 1.0, (n, cfg.signature_window, 7, 6)) ** 2
+    flagged = 0
+    for windowed in draws:
+        window = SignatureWindow(cfg)
+        for residuals in windowed:
+            window.push(None, residuals)
+        flagged += window.base_inconsistent(q)
+    ordered = np.sort(draws[:, :, 0, 4], axis=1)
+    expected = int(np.sum(np.sum(ordered[:, :-1], axis=1) > chi2.ppf(0.99, 19)))
+    assert flagged == expected
+    assert flagged / n <= 0.01
+    noisy = 3.0**2 * draws  # a noise of factor 3 over a prediction as wide as the sensor
+    found = 0
+    for windowed in noisy[:400]:
+        window = SignatureWindow(cfg)
+        for residuals in windowed:
+            window.push(None, residuals)
+        found += window.base_inconsistent(q)
+    ordered = np.sort(noisy[:400, :, 0, 4], axis=1)
+    assert found == int(np.sum(np.sum(ordered[:, :-1], axis=1) > chi2.ppf(0.99, 19)))
+    assert found / 400 >= 0.99
 
 
 def test_signature_test_settings_are_checked():

@@ -14,8 +14,10 @@ channel's failure: the mode ``D + c`` is always in the bank.
   zero plus noise, or the offset the slot learnt for it is beyond its uncertainty (the
   chi-square quantile ``signature_quantile`` either way), or the slot has seen it fail in a way
   no offset explains: read zero or hold still where it should have moved, or read what no
-  learnt offset fits (its weights of dead, stuck and anything at least the quantile).
-  Save for the zero test, the failure must also be *sustained*: over the same window, the
+  learnt offset fits (its weights of dead, stuck and anything at least the quantile), or
+  slot 0, which reads it as healthy, cannot explain it (its residuals over the window, the
+  largest left out, beyond the quantile: a noise or a gain, whose learnt offset stays near
+  zero). Save for the zero test, the failure must also be *sustained*: over the same window, the
   slot's log-likelihood ratio to slot 0 without its largest sample is at least
   ``ln(q / (1 - q))``, ``q = signature_quantile`` (6.9 nats: the window alone, from even odds,
   makes the mode ``q`` likely). A slot that learnt its offset is the base filter plus one
@@ -393,6 +395,7 @@ class DeclaredSetDetector:
                     (
                         self._window.offset_beyond(j, failed)
                         or self._seen_failing(failure_weights, j, channel)
+                        or self._window.base_inconsistent(failed)
                     )
                     and self._sustained(j)
                 )

@@ -204,6 +204,24 @@ class SignatureWindow:
         mean = np.mean(np.array(self._residuals)[:, j, :], axis=0)
         return bool(np.any(mean[failed] > self._limit[0]))
 
+    def base_inconsistent(self, failed: np.ndarray) -> bool:
+        """Whether mode 0, which reads the channels of ``failed`` as healthy, cannot explain them.
+
+        The sum of mode 0's normalised squared residuals on a channel over the window, its
+        largest sample left out (one gust's tail is not a failure, as for the sustained test),
+        beyond the chi-square quantile of one degree fewer than the samples: a reading that
+        keeps leaving the healthy prediction, whatever its mean (a noisy channel's offset stays
+        zero, so :meth:`offset_beyond` never sees it). Leaving the largest of ``n`` samples out
+        makes the sum stochastically smaller than a chi-square of ``n - 1`` degrees, so the
+        test errs towards "consistent". False with fewer than two samples.
+        """
+        n = len(self._residuals)
+        if n < 2:
+            return False
+        base = np.array(self._residuals)[:, 0, :][:, failed]
+        rest = np.sum(base, axis=0) - np.max(base, axis=0)
+        return bool(np.any(rest > self._limit[n - 2]))
+
 
 class FaultDetector:
     """The paper bank's decision: zero modes declared, cleared and latched (module docstring).

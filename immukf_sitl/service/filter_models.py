@@ -315,6 +315,10 @@ class ModelDynamics(ABC):
     def wind_ned_mps(self, mean: np.ndarray) -> np.ndarray | None:
         """The wind estimate in a state ``mean`` (NED, m/s), if the model has one."""
 
+    def imu_spread_var(self, air: TurbulenceEstimate | None) -> np.ndarray | None:
+        """``(6,)``: each IMU channel's variance beyond ``S`` that the modes are scored with."""
+        return None
+
 
 class FilterModel(ABC):
     """A filter model's configuration: its tuning preset and its Markov chain (eq. 3).
@@ -806,12 +810,8 @@ class _RealAirDynamics(ModelDynamics):
             )  # fmt: skip
             return self._idle_offsets(bank), air
         process = adapter.process_at(air.scale)
-        score_var = None
-        if (
-            self.model.score_unexplained
-            and self.model.fault_signature == "untrusted"  # the zero test needs none
-        ):
-            score_var = air.unexplained_var()
+        score_var = self.imu_spread_var(air)
+        if score_var is not None:
             n_gps = 0 if z is None else z.model.nz - N_IMU
             if n_gps > 0:  # a fix: its channels against the spread the base's fixes show
                 score_var = np.concatenate([score_var, air.gps_unexplained_var(n_gps)])
@@ -832,6 +832,17 @@ class _RealAirDynamics(ModelDynamics):
                 self.modes[lead].healthy_mask, base,
             )  # fmt: skip
         return bank, air
+
+    def imu_spread_var(self, air: TurbulenceEstimate | None) -> np.ndarray | None:
+        """The spread the base's innovations show beyond ``S`` (untrusted modes, adapted air)."""
+        if (
+            air is None
+            or self.adapter is None
+            or not self.model.score_unexplained
+            or self.model.fault_signature != "untrusted"  # the zero test needs none
+        ):
+            return None
+        return air.unexplained_var()
 
     def wind_ned_mps(self, mean: np.ndarray) -> np.ndarray:
         """The wind states."""

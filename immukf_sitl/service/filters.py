@@ -425,7 +425,9 @@ class AircraftEstimator(_Bank):
         The residual of a mode's own prediction of each channel and the variance of its
         prediction plus the sensor noise: for an untrusted mode's failed channel, how far the
         reading is from what the other sensors say it should be; for a zero mode's, how far
-        from zero. None on a predict-only step.
+        from zero. None on a predict-only step. A channel a mode trusts has the spread its
+        innovations show beyond ``S`` added to its variance, as the modes are scored with it
+        (:meth:`ModelDynamics.imu_spread_var`).
         """
         bank = estimate.filter
         if bank.innovations is None or bank.innovation_var is None:
@@ -434,6 +436,9 @@ class AircraftEstimator(_Bank):
         width = self.imu_model.mode_noise_var
         if width is not None:
             var = var - width[:, :6]
+        spread = self.dynamics.imu_spread_var(estimate.turbulence)
+        if spread is not None:
+            var = var + spread * self._healthy_masks
         offset = self.dynamics.offset
         if offset is not None:  # a newly failed channel: its offset, the rest's disagreement
             nu, var = offset.residuals(bank.mode_means, bank.mode_covs, nu, var, estimate.imu)
