@@ -7,6 +7,7 @@ import json
 import math
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from immukf_sitl.cli import main
@@ -828,18 +829,85 @@ def test_a_pair_runs_row_names_its_second_fault_and_single_rows_leave_it_empty(
     assert list(pair) == list(COLUMNS)
 
 
-def test_a_runs_csv_written_before_the_pair_columns_still_reads(tmp_path: Path) -> None:
-    old = [c for c in COLUMNS if c not in campaign_run.PAIR_COLUMNS]
+@pytest.mark.parametrize(
+    "missing",
+    [campaign_run.AFTER_DECLARATION_COLUMNS,
+     campaign_run.PAIR_COLUMNS + campaign_run.AFTER_DECLARATION_COLUMNS],
+    ids=["before-survival", "before-pairs"],
+)  # fmt: skip
+def test_a_runs_csv_written_before_later_columns_still_reads(
+    tmp_path: Path, missing: tuple[str, ...]
+) -> None:
+    old = [c for c in COLUMNS if c not in missing]
     path = tmp_path / "runs.csv"
     with path.open("w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=old, lineterminator="\n")
         writer.writeheader()
         writer.writerow(dict.fromkeys(old, "1"))
     (row,) = read_rows(path)
-    assert list(row) == list(COLUMNS) and row["index"] == "1" and row["second_fault"] == ""
+    assert list(row) == list(COLUMNS) and row["index"] == "1"
+    assert all(row[c] == "" for c in missing)
     path.write_text("index,run_id\n0,a\n")
     with pytest.raises(UserError, match="columns differ"):
         read_rows(path)
+
+
+def test_errors_after_a_declaration_cover_the_flight_from_it_on() -> None:
+    """A 1 deg attitude error before the declaration at 5 s and a 3-4-0 deg one (5 deg) after:
+    the MSE after it is exactly 25 deg^2; the position error 2 m before, 7 m after."""
+    from types import SimpleNamespace
+
+    from immukf_sitl.experiments.metrics import errors_after_declaration
+
+    times = np.round(np.arange(0.0, 10.0, 0.01), 2)
+    records, estimates = [], []
+    for t in times:
+        truth = SimpleNamespace(position_ned_m=np.zeros(3), euler_rad=np.zeros(3))
+        records.append(SimpleNamespace(time_s=float(t), autopilot=object(), truth=truth))
+        after = t >= 5.0
+        euler = np.radians([3.0, 4.0, 0.0]) if after else np.radians([1.0, 0.0, 0.0])
+        position = np.array([0.0, 7.0 if after else 2.0, 0.0])
+        estimates.append(SimpleNamespace(time_s=float(t), position_ned_m=position, euler_rad=euler))
+    run = SimpleNamespace(records=records, estimates=estimates)
+    out = errors_after_declaration(run, settle_s=1.0, declared_t_s=5.0)
+    assert out["est_att_mse_after_decl_deg2"] == pytest.approx(25.0)
+    assert out["est_pos_max_after_decl_m"] == pytest.approx(7.0)
+    assert errors_after_declaration(run, 1.0, None) == {
+        "est_att_mse_after_decl_deg2": None,
+        "est_pos_max_after_decl_m": None,
+    }
+
+
+def test_survival_per_kind_compares_with_the_same_airs_fault_free_twin() -> None:
+    """Survived: declared, stable, attitude MSE after the declaration at most 1.5 times the
+    twin's (same air, airframe draw and loop) and position error under 20 m."""
+    from immukf_sitl.experiments.campaign_render import matrix_markdown
+    from immukf_sitl.experiments.campaign_summary import matrix_summary
+
+    def imm(fault: str, kind: str, after_att: str, after_pos: str, **cells: str):
+        cells.setdefault("detection_delay_s", "0.5")
+        return _row(variant="imm", fault=fault, fault_kind=kind, fault_t_s="40",
+                    observable_t_s="41", est_att_mse_after_decl_deg2=after_att,
+                    est_pos_max_after_decl_m=after_pos, **cells)  # fmt: skip
+
+    rows = [
+        _row(variant="imm", fault="none", est_att_mse_deg2="2.0"),
+        _row(variant="imm", fault="none", air="light", est_att_mse_deg2="4.0"),
+        imm("q", "bias", "2.9", "5", detection_delay_s="0.2"),  # 1.45x: survived
+        imm("p", "bias", "3.1", "5", detection_delay_s="0.4"),  # 1.55x: not
+        imm("x", "bias", "5.9", "25", air="light", detection_delay_s="0.9"),  # 25 m: not
+        imm("y", "bias", "0.1", "1", replicate="1"),  # no fault-free twin: not counted
+        imm("r", "drift", "1.0", "1", status="critical", failure="diverged"),  # lost
+        imm("z", "drift", "", "", detection_delay_s=""),  # never declared: not survived
+    ]
+    kinds = matrix_summary(rows)["real-air"]["overall"]["identification"]["by_kind"]
+    bias, drift = kinds["bias"], kinds["drift"]
+    assert (bias["survived"], bias["with_fault_free_twin"], bias["lost"]) == (1, 3, 0)
+    assert bias["detection_delay_s_median"] == pytest.approx(0.45)
+    assert (drift["survived"], drift["with_fault_free_twin"], drift["lost"]) == (0, 2, 1)
+    assert "| bias | 4 | 0 (0 %) | 0.45 s | 0 (0 %) | – | 0 | 1/3 |" in matrix_markdown(
+        matrix_summary(rows)
+    )
 
 
 def test_the_matrix_summary_gives_pairs_per_gap_apart_from_the_single_faults() -> None:

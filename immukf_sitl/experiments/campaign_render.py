@@ -18,6 +18,8 @@ from immukf_sitl.experiments.campaign import Campaign, UniformFaultTimes
 from immukf_sitl.experiments.campaign_summary import (
     MATRIX_WITHIN_S,
     PAIRS_SECOND_SHARE,
+    SURVIVAL_ATTITUDE_RATIO,
+    SURVIVAL_POSITION_M,
     _float,
     pair_gap_label,
 )
@@ -331,22 +333,34 @@ def _identification_lines(groups: list[tuple[str, dict]]) -> list[str]:
 
 
 def _kind_lines(overall: dict) -> list[str]:
-    """Per fault kind (all airs): identified within 1 s, named right, size error (zero: none)."""
+    """Per fault kind (all airs): the identification, naming and survival figures.
+
+    Zero-only campaigns have none.
+    """
     kinds = overall["identification"].get("by_kind", {})
     if set(kinds) <= {"zero"}:
         return []
     lines = [
         "\n**By fault kind** (all airs; the size error is the median relative error of the "
-        "named size where the kind was named right, for bias, drift and scale):\n",
-        "| kind | observable | identified within 1 s | named right | size error |",
-        "|---|---|---|---|---|",
+        "named size where the kind was named right, for bias, drift and scale; survived: "
+        f"declared, not lost, the attitude MSE after the declaration at most "
+        f"{SURVIVAL_ATTITUDE_RATIO:g} times the same air's and airframe's fault-free flight and "
+        f"the position error after it under {SURVIVAL_POSITION_M:g} m, over the runs that "
+        "have that flight):\n",
+        "| kind | observable | identified within 1 s | median delay | named right | size error "
+        "| runs lost | survived |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for kind, k in kinds.items():
         n = k["observable"]
+        twinned = k.get("with_fault_free_twin", 0)
+        delay = k.get("detection_delay_s_median")
         lines.append(
             f"| {kind} | {n} | {k['identified_within_1s']} ({_pct(k['identified_within_1s'], n)})"
+            f" | {'–' if delay is None else f'{delay:.2f} s'}"
             f" | {k['named_right']} ({_pct(k['named_right'], n)}) | "
-            f"{_n(k['size_error_median'], '.1%')} |"
+            f"{_n(k['size_error_median'], '.1%')} | {k.get('lost', 0)} | "
+            f"{k.get('survived', 0)}/{twinned} |"
         )
     return lines
 

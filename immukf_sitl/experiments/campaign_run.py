@@ -31,6 +31,7 @@ from immukf_sitl.experiments.inprocess import InProcessRun, run_inprocess
 from immukf_sitl.experiments.metrics import (
     FailureMonitor,
     error_metrics,
+    errors_after_declaration,
     identification_metrics,
 )
 from immukf_sitl.service.filter_models import FilterModel, filter_model
@@ -70,6 +71,8 @@ COLUMNS: tuple[str, ...] = (
     "est_pos_mse_m2",
     "est_att_max_deg",
     "est_att_mse_deg2",
+    "est_att_mse_after_decl_deg2",
+    "est_pos_max_after_decl_m",
     "ctrl_pos_max_m",
     "ctrl_pos_mse_m2",
     "ctrl_att_max_deg",
@@ -93,7 +96,12 @@ COLUMNS: tuple[str, ...] = (
 )
 #: the columns pair runs added: a ``runs.csv`` written before them still reads, with them empty
 PAIR_COLUMNS = (*_SECOND_FAULT_COLUMNS, "declared_at_end")
-_COLUMNS_BEFORE_PAIRS = tuple(c for c in COLUMNS if c not in PAIR_COLUMNS)
+#: the columns the survival after a declaration added (read empty from an older file too)
+AFTER_DECLARATION_COLUMNS = ("est_att_mse_after_decl_deg2", "est_pos_max_after_decl_m")
+_OLDER_HEADERS = (
+    tuple(c for c in COLUMNS if c not in AFTER_DECLARATION_COLUMNS),
+    tuple(c for c in COLUMNS if c not in PAIR_COLUMNS + AFTER_DECLARATION_COLUMNS),
+)
 RUNS_CSV = "runs.csv"
 CAMPAIGN_JSON = "campaign.json"
 
@@ -161,6 +169,9 @@ def execute_run(spec: RunSpec) -> dict[str, str]:
         if spec.variant != "imm":  # a single filter declares nothing: only when it showed
             identification = {"observable_t_s": identification["observable_t_s"]}
         row.update(identification)
+        if spec.variant == "imm":
+            declared_t_s = identification["detected_t_s"]
+            row.update(errors_after_declaration(run, settle_s, declared_t_s))
         row["status"] = "critical" if monitor.reason else "stable"
         row["failure"] = monitor.reason or ""
         row["failure_t_s"] = monitor.t_s
@@ -186,13 +197,14 @@ def _row_of(future: Future, spec: RunSpec) -> dict[str, str]:
 def read_rows(path: Path) -> list[dict[str, str]]:
     """The rows of a ``runs.csv`` (empty if there is none).
 
-    A file written before :data:`PAIR_COLUMNS` existed reads with those cells empty.
+    A file written before :data:`PAIR_COLUMNS` or :data:`AFTER_DECLARATION_COLUMNS` existed
+    reads with those cells empty.
     """
     if not path.exists():
         return []
     with path.open(newline="", encoding="utf-8") as f:
         reader = csv.DictReader(f)
-        if tuple(reader.fieldnames or ()) not in (COLUMNS, _COLUMNS_BEFORE_PAIRS):
+        if tuple(reader.fieldnames or ()) not in (COLUMNS, *_OLDER_HEADERS):
             raise UserError(f"{path}: not a runs.csv of this version (columns differ)")
         return [{k: row.get(k, "") for k in COLUMNS} for row in reader]
 

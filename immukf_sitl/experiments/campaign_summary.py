@@ -33,6 +33,15 @@ MATRIX_FAULT_FREE_HOURS = 1.0
 MATRIX_ATTITUDE_RATIO = 1.2
 
 
+#: survival: after the declaration, the attitude MSE at most this multiple of the same air's and
+#: airframe's fault-free flight ...
+SURVIVAL_ATTITUDE_RATIO = 1.5
+
+
+#: ... and the largest position error under this (m)
+SURVIVAL_POSITION_M = 20.0
+
+
 #: pairs: at least this share of the observable second faults identified within
 #: :data:`MATRIX_WITHIN_S`, at every gap
 PAIRS_SECOND_SHARE = 0.90
@@ -84,7 +93,7 @@ def _identification(imm: Sequence[Row]) -> dict[str, object]:
         }
     share = len(within) / len(observable) if observable else math.nan
     return {
-        "by_kind": _by_kind(observable, within),
+        "by_kind": _by_kind(observable, within, _fault_free_attitude(imm)),
         "faulted_runs": len(faulted),
         "observable": len(observable),
         "ended_before_fault": len(before),
@@ -104,8 +113,47 @@ def _identification(imm: Sequence[Row]) -> dict[str, object]:
 SIZED_KINDS = ("bias", "drift", "scale")
 
 
-def _by_kind(observable: Sequence[Row], within: Sequence[Row]) -> dict[str, dict[str, object]]:
-    """Per fault kind: identified within the bound, named right, and the named size's error."""
+def _flight_key(row: Row) -> tuple[str, str, str]:
+    """Which flight a row's airframe, air and loop make (its fault-free twin shares it)."""
+    return (row["air"], row.get("loop") or "closed", row["replicate"])
+
+
+def _fault_free_attitude(imm: Sequence[Row]) -> dict[tuple[str, str, str], float]:
+    """The fault-free IMM flights' attitude MSE (deg^2), by :func:`_flight_key`."""
+    return {
+        _flight_key(r): _float(r["est_att_mse_deg2"])
+        for r in imm
+        if r["fault"] == "none" and r["status"] == "stable"
+    }
+
+
+def survived(row: Row, fault_free_att_mse_deg2: float) -> bool:
+    """Whether a faulted run flew on after its declaration as its fault-free twin does.
+
+    Declared, not critical, the attitude MSE after the declaration at most
+    :data:`SURVIVAL_ATTITUDE_RATIO` times the twin's over its flight, and the position error
+    after it under :data:`SURVIVAL_POSITION_M`. A run never declared has nothing to survive
+    with: it does not count as survived.
+    """
+    att = _float(row.get("est_att_mse_after_decl_deg2", ""))
+    pos = _float(row.get("est_pos_max_after_decl_m", ""))
+    return (
+        row["status"] == "stable"
+        and math.isfinite(att)
+        and att <= SURVIVAL_ATTITUDE_RATIO * fault_free_att_mse_deg2
+        and pos < SURVIVAL_POSITION_M
+    )
+
+
+def _by_kind(
+    observable: Sequence[Row],
+    within: Sequence[Row],
+    fault_free: dict[tuple[str, str, str], float],
+) -> dict[str, dict[str, object]]:
+    """Per fault kind: identified within the bound, its delay, named right, the size's error.
+
+    And survival: runs lost, and :func:`survived` over the runs whose twin flew fault-free.
+    """
     out: dict[str, dict[str, object]] = {}
     for kind in _ordered([r.get("fault_kind") or "zero" for r in observable]):
         mine = [r for r in observable if (r.get("fault_kind") or "zero") == kind]
@@ -115,11 +163,17 @@ def _by_kind(observable: Sequence[Row], within: Sequence[Row]) -> dict[str, dict
             for r in named
             if kind in SIZED_KINDS and r.get("named_size") and _float(r["fault_value"]) != 0.0
         ]
+        twinned = [r for r in mine if _flight_key(r) in fault_free]
+        delays = [_float(r["detection_delay_s"]) for r in mine if r["detection_delay_s"]]
         out[kind] = {
             "observable": len(mine),
             "identified_within_1s": sum(r in within for r in mine),
+            "detection_delay_s_median": _number(_median(delays)),
             "named_right": len(named),
             "size_error_median": _number(_median(errors)),
+            "lost": sum(r["status"] == "critical" for r in mine),
+            "with_fault_free_twin": len(twinned),
+            "survived": sum(survived(r, fault_free[_flight_key(r)]) for r in twinned),
         }
     return out
 

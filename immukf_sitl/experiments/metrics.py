@@ -21,6 +21,9 @@ Definitions (docs/results/paper/report.md repeats them for readers of the tables
   became observable (docs/scenarios.md, "What to expect in steady flight"); a run *identifies*
   its fault when the first declaration at or after the fault names the true mode (a fault-free
   run: no declaration at all); false declarations are those of a mode other than the active one.
+- **After the declaration**: the attitude MSE and the largest position error of the estimate
+  from the declaration that names the fault's channel to the end of the flight, to compare
+  with the same air's and airframe's fault-free flight (survival).
 - **Pair runs** (two channels, the second failing a gap after the first): the run's
   identification columns describe the first fault (the first declaration at or after it must
   name the first channel), the ``second_*`` columns the second; each channel's detection is the
@@ -187,6 +190,26 @@ def error_metrics(run: InProcessRun, settle_s: float) -> dict[str, float]:
         out[f"{name}_max_{unit}"] = stats.max
         out[f"{name}_mse_{unit}2"] = stats.mse
     return out
+
+
+def errors_after_declaration(
+    run: InProcessRun, settle_s: float, declared_t_s: float | None
+) -> dict[str, float | None]:
+    """The estimate's attitude MSE (deg^2) and largest position error (m) from a declaration on.
+
+    Survival is judged here: once the failed channel is declared, the estimate should fly as
+    the same air's fault-free flight does. Never declared (``declared_t_s`` None): both None.
+    A critical run's window ends where it stopped.
+    """
+    if declared_t_s is None:
+        return dict.fromkeys(("est_att_mse_after_decl_deg2", "est_pos_max_after_decl_m"))
+    start_s = declared_t_s - 5e-4  # declaration times are rounded to the millisecond
+    window = [(rec, nav) for rec, nav in _window(run, settle_s) if rec.time_s >= start_s]
+    est = np.array([estimate_errors(rec, nav) for rec, nav in window]).reshape(-1, 2)
+    return {
+        "est_att_mse_after_decl_deg2": ErrorStats.of(est[:, 1]).mse,
+        "est_pos_max_after_decl_m": ErrorStats.of(est[:, 0]).max,
+    }
 
 
 def fault_free_window_s(
