@@ -905,9 +905,26 @@ def test_survival_per_kind_compares_with_the_same_airs_fault_free_twin() -> None
     assert (bias["survived"], bias["with_fault_free_twin"], bias["lost"]) == (1, 3, 0)
     assert bias["detection_delay_s_median"] == pytest.approx(0.45)
     assert (drift["survived"], drift["with_fault_free_twin"], drift["lost"]) == (0, 2, 1)
-    assert "| bias | 4 | 0 (0 %) | 0.45 s | 0 (0 %) | – | 0 | 1/3 |" in matrix_markdown(
-        matrix_summary(rows)
-    )
+    text = matrix_markdown(matrix_summary(rows))
+    assert "| bias | 4 | 0 (0 %) | 0.45 s | 0 (0 %) | – | 0 | 1/3 |" in text
+    assert "  | bias | **not met** | **not met** | **not met** |" in text
+    # the same bias runs, each in time, named with its size and flown on as its twin
+    fine = [
+        {**r, "identified_within_1s": "true", "named_kind": "bias", "fault_value": "0.1",
+         "named_size": "0.11", "est_att_mse_after_decl_deg2": "1.0",
+         "est_pos_max_after_decl_m": "1", "detection_delay_s": "0.2"}
+        for r in rows[2:5]
+    ]  # fmt: skip
+    ok = matrix_summary(rows[:2] + fine)["real-air"]["acceptance"]["kinds"]["bias"]
+    assert ok == {"identified_within_1s": True, "named_right": True, "survived": True}
+    late = [{**r, "detection_delay_s": "0.31"} for r in fine]  # a median over 0.3 s
+    assert not matrix_summary(rows[:2] + late)["real-air"]["acceptance"]["kinds"]["bias"][
+        "identified_within_1s"
+    ]
+    sized = [{**r, "named_size": "0.121"} for r in fine]  # 21 % off
+    assert not matrix_summary(rows[:2] + sized)["real-air"]["acceptance"]["kinds"]["bias"][
+        "named_right"
+    ]
 
 
 def test_the_matrix_summary_gives_pairs_per_gap_apart_from_the_single_faults() -> None:

@@ -42,6 +42,18 @@ SURVIVAL_ATTITUDE_RATIO = 1.5
 SURVIVAL_POSITION_M = 20.0
 
 
+#: every fault kind: the median delay of its observable single faults at most this (s) ...
+KIND_MEDIAN_DELAY_S = 0.3
+
+
+#: ... the kind named right in at least this share of them ...
+KIND_NAMED_SHARE = 0.90
+
+
+#: ... and the median relative error of the named size at most this (bias, drift, scale)
+KIND_SIZE_ERROR = 0.20
+
+
 #: pairs: at least this share of the observable second faults identified within
 #: :data:`MATRIX_WITHIN_S`, at every gap
 PAIRS_SECOND_SHARE = 0.90
@@ -397,10 +409,36 @@ def matrix_summary(rows: Sequence[Row]) -> dict[str, object]:
     return out
 
 
+def _kind_acceptance(by_kind: dict[str, dict[str, object]]) -> dict[str, dict[str, bool]]:
+    """Per fault kind: identified in time, named right and sized, and every run survived.
+
+    In time is the share within 1 s and the median delay; survived is :func:`survived` for
+    every run that has a fault-free twin, and no run lost.
+    """
+    out = {}
+    for kind, k in by_kind.items():
+        n, delay, size = k["observable"], k["detection_delay_s_median"], k["size_error_median"]
+        sized = kind not in SIZED_KINDS or (size is not None and size <= KIND_SIZE_ERROR)
+        out[kind] = {
+            "identified_within_1s": n > 0
+            and k["identified_within_1s"] >= MATRIX_IDENTIFIED_SHARE * n
+            and delay is not None
+            and delay <= KIND_MEDIAN_DELAY_S,
+            "named_right": n > 0 and k["named_right"] >= KIND_NAMED_SHARE * n and sized,
+            "survived": k["lost"] == 0
+            and k["with_fault_free_twin"] > 0
+            and k["survived"] == k["with_fault_free_twin"],
+        }
+    return out
+
+
 def _acceptance(group: dict) -> dict[str, object]:
     ident, false, att = group["identification"], group["false_declarations"], group["attitude"]
     share = ident["identified_within_1s_share"]
+    kinds = ident["by_kind"]
+    extra = {} if set(kinds) <= {"zero"} else {"kinds": _kind_acceptance(kinds)}
     return {
+        **extra,
         "identified_within_1s": share is not None and share >= MATRIX_IDENTIFIED_SHARE,
         "no_false_declarations_in_1h": false["declarations"] == 0
         and (false["hours"] or 0.0) >= MATRIX_FAULT_FREE_HOURS,
