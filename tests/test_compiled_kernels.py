@@ -37,8 +37,8 @@ from immukf_sitl.estimation.angles import wrap_angle
 from immukf_sitl.estimation.failure_kernels import (
     failure_terms,
     failure_update,
-    offset_leads,
     outlier_widths,
+    read_way,
 )
 from immukf_sitl.estimation.fault_modes import FaultMode, bank_modes, failed_channels
 from immukf_sitl.estimation.ukf import _process_column_source, load_kernels
@@ -672,10 +672,25 @@ def _scoring_inputs(seed: int):
     previous[0] = np.nan  # nothing held on one channel
     offset_reading = rng.normal(0.0, 0.1, failed.size)
     limits = np.concatenate([rng.uniform(1e-5, 1e-3, 6), [3.0, 0.1]])
-    weights = rng.dirichlet(np.ones(4), (r, 6))
+    weights = rng.dirichlet(np.ones(8), (r, 6))  # dead, stuck, offset, anything, 4 noisy
     widths = rng.uniform(0.0, 1e-4, (r, 6))
     spreads = np.concatenate([rng.uniform(1.0, 10.0, 6), [1e-6, 0.01]])
-    return pairs, innovation, cov, z, previous, offset_reading, limits, weights, widths, spreads
+    noisy = np.outer(limits[:6], np.array([2.0, 4.0, 8.0, 16.0]) ** 2 - 1.0)
+    return (
+        pairs,
+        innovation,
+        cov,
+        z,
+        previous,
+        offset_reading,
+        limits,
+        weights,
+        widths,
+        (
+            spreads,
+            noisy,
+        ),
+    )
 
 
 @pytest.mark.parametrize("seed", [1, 2, 3])
@@ -687,8 +702,8 @@ def test_failure_scoring_compiled_equals_interpreted(seed):
     np.testing.assert_allclose(terms, reference, rtol=SAME, atol=0.0)
     assert 0 < terms[:, 3].sum() < len(pairs)  # seen and unseen dead parts both exercised
     base = np.random.default_rng(seed).normal(-40.0, 5.0, len(weights))
-    got = failure_update(pairs, terms, nu, cov, widths, weights, base, spreads)
-    want = failure_update.py_func(pairs, terms, nu, cov, widths, weights, base, spreads)
+    got = failure_update(pairs, terms, nu, cov, widths, weights, base, *spreads)
+    want = failure_update.py_func(pairs, terms, nu, cov, widths, weights, base, *spreads)
     for a, b in zip(got, want, strict=True):
         np.testing.assert_allclose(a, b, rtol=SAME, atol=1e-15)
     np.testing.assert_allclose(got[1].sum(axis=2), 1.0, rtol=1e-12)  # weights stay a simplex
@@ -697,12 +712,12 @@ def test_failure_scoring_compiled_equals_interpreted(seed):
 @pytest.mark.parametrize("seed", [1, 2])
 def test_outlier_gate_kernels_compiled_equal_interpreted_and_numpy(seed):
     """The gate's kernels against their interpreted selves and a numpy computation: which
-    pairs' offset way leads, the pairs' innovation moments (eqs. 17, 20, 21), the widths."""
-    pairs, _, _, z, _, _, _, weights, _, spreads = _scoring_inputs(seed)
-    leads = offset_leads(pairs, weights)
-    np.testing.assert_array_equal(leads, offset_leads.py_func(pairs, weights))
+    way leads each pair's weights, the pairs' innovation moments (eqs. 17, 20, 21), the widths."""
+    pairs, _, _, z, _, _, _, weights, _, (spreads, _) = _scoring_inputs(seed)
+    way = read_way(pairs, weights)
+    np.testing.assert_array_equal(way, read_way.py_func(pairs, weights))
     ways = weights[pairs[:, 0], pairs[:, 1]]
-    np.testing.assert_array_equal(leads, ways[:, 2] >= ways.max(axis=1))
+    np.testing.assert_array_equal(way, np.argmax(ways, axis=1))  # no ties in random weights
     rng = np.random.default_rng(seed)
     r, nz, n_points = len(weights), z.size, 13
     z_points = rng.normal(0.0, 1.0, (nz, r, n_points))

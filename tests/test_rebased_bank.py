@@ -22,8 +22,11 @@ from immukf_sitl.estimation import (
 from immukf_sitl.estimation.fault_modes import (
     DRIFT_PRIOR_VAR,
     FAILURE_PRIOR,
+    FAILURE_WAYS,
     FAILURE_WEIGHT_FLOOR,
     GAIN_PRIOR_VAR,
+    NOISE_FACTORS,
+    NOISE_WAY,
     OFFSET_PRIOR_VAR,
     OUTLIER_SHARE,
     STUCK_SIGMAS,
@@ -298,6 +301,60 @@ def test_failure_weights_are_the_bayes_posterior_of_the_ways_to_fail():
     np.testing.assert_array_equal(updated[0], weights[0])  # the fault-free mode: untouched
 
 
+def test_a_noisy_channel_is_scored_at_its_noise_factor_and_its_weights_find_the_factor():
+    """One step against a direct computation of all eight ways (the noise ways
+    ``N(nu; 0, S + (k^2 - 1) R)``), then a channel whose noise is 8 times the sensor's: its
+    weights settle on the factor of 8 and the mode gains on it what the normals say."""
+    modes = single_fault_modes()
+    evidence, imu = _evidence(modes)
+    q, slot = 4, 5
+    r = imu.sigmas[q] ** 2
+    cov = np.tile(np.diag(imu.sigmas**2 * 4.0), (7, 1, 1))  # a prediction 2 noise sigmas wide
+    s = cov[slot, q, q]
+    rng = np.random.default_rng(11)
+    weights = np.tile(FAILURE_PRIOR, (7, 6, 1))
+    z = np.array([0.3, 0.1, -9.8, 0.2, 0.3, 0.1])
+    gained = 0.0
+    for step in range(300):
+        nu = rng.normal(0.0, 1.0, (7, 6)) * np.sqrt(np.diagonal(cov, axis1=1, axis2=2))
+        nu[slot, q] = rng.normal(0.0, math.sqrt(s + (8.0**2 - 1.0) * r))
+        z = z + rng.normal(0.0, 0.2, 6)  # far from zero and moving: dead and stuck seen
+        previous = z + 0.5
+        got, updated = evidence.score(
+            0.0, np.zeros((7, 6)), nu, cov, z, None, np.zeros(7), weights, previous, None
+        )
+        if step == 0:
+            dead = norm.logpdf(z[q], 0.0, math.sqrt(r))
+            stuck = norm.logpdf(z[q] - previous[q], 0.0, STUCK_SIGMAS * math.sqrt(r))
+            factor = norm.logpdf(nu[slot, q], 0.0, math.sqrt(s))
+            anything = norm.logpdf(nu[slot, q], 0.0, math.sqrt(s + imu.ranges[q] ** 2 / 3.0))
+            off = np.logaddexp(
+                math.log1p(-OUTLIER_SHARE) + factor, math.log(OUTLIER_SHARE) + anything
+            )
+            noisy = [  # the offset way at the noise of each factor, its outliers and all
+                np.logaddexp(
+                    math.log1p(-OUTLIER_SHARE)
+                    + norm.logpdf(nu[slot, q], 0.0, math.sqrt(s + (k**2 - 1.0) * r)),
+                    math.log(OUTLIER_SHARE) + anything,
+                )
+                for k in NOISE_FACTORS
+            ]
+            joint = np.log(FAILURE_PRIOR) + np.array([dead, stuck, off, anything, *noisy])
+            predictive = np.logaddexp.reduce(joint)
+            assert got[slot] == pytest.approx(predictive - factor, abs=1e-9)
+            posterior = np.maximum(np.exp(joint - predictive), FAILURE_WEIGHT_FLOOR)
+            np.testing.assert_allclose(updated[slot, q], posterior / posterior.sum(), atol=1e-12)
+        weights = updated
+        gained += got[slot]  # the mixture over the UKF's healthy factor N(nu; 0, S)
+    assert FAILURE_WAYS[int(np.argmax(weights[slot, q]))] == "noise x8"
+    assert weights[slot, q, FAILURE_WAYS.index("noise x8")] > 0.9
+    # 300 samples of a factor-8 noise over a prediction 2 sigmas wide: the x8 way against the
+    # healthy one, E[ln N(nu; 0, 67 R) - ln N(nu; 0, 4 R)] = (67 / 4 - 1 - ln(67 / 4)) / 2
+    # = 6.46 nats a sample; the ways' learning costs a few nats of it, once
+    per_sample = (67.0 / 4.0 - 1.0 - math.log(67.0 / 4.0)) / 2.0
+    assert 0.9 * 300 * per_sample < gained < 1.1 * 300 * per_sample
+
+
 def test_settled_weights_cost_a_mode_its_outlier_share_where_a_fresh_mixture_costs_ln_2():
     modes = single_fault_modes()
     evidence, imu = _evidence(modes)
@@ -305,18 +362,30 @@ def test_settled_weights_cost_a_mode_its_outlier_share_where_a_fresh_mixture_cos
     cov = np.tile(np.diag(imu.sigmas**2 * 4.0), (7, 1, 1))
     weights = np.tile(FAILURE_PRIOR, (7, 6, 1))
     z = np.array([0.3, 0.1, -9.8, 0.2, 0.3, 0.1])
-    costs = []
-    for _ in range(50):  # an offset-like channel: readings the offset explains, far from 0
+    costs, first = [], None
+    for _ in range(400):  # an offset-like channel: readings the offset explains, far from 0
         z = z + rng.normal(0.0, 0.2, 6)
         nu = rng.normal(0.0, 1.0, (7, 6)) * np.sqrt(np.diagonal(cov, axis1=1, axis2=2))
+        first = nu[5, 4] if first is None else first
         previous = z + 0.5  # it moves
         got, weights = evidence.score(
             0.0, np.zeros((7, 6)), nu, cov, z, None, np.zeros(7), weights, previous, None
         )
         costs.append(got[5])
-    assert costs[0] == pytest.approx(math.log(1 / 4), abs=0.01)  # the prior's price, once
-    # then only the samples kept for outliers: ln(1 - share) a step, 0.01 nats
-    assert costs[-1] == pytest.approx(math.log1p(-OUTLIER_SHARE), abs=10 * FAILURE_WEIGHT_FLOOR)
+    # the prior's price, once: the offset way's share, and the noise ways' densities beside it
+    s_q, r_q = cov[5, 4, 4], imu.sigmas[4] ** 2
+    noisy = [
+        norm.pdf(first, scale=math.sqrt(s_q + (k**2 - 1) * r_q))
+        / norm.pdf(first, scale=math.sqrt(s_q))
+        for k in NOISE_FACTORS
+    ]
+    prior = (1 - OUTLIER_SHARE) * (FAILURE_PRIOR[2] + FAILURE_PRIOR[NOISE_WAY] * sum(noisy))
+    assert costs[0] == pytest.approx(math.log(prior), abs=0.01)
+    # then, once the noise ways have lost to the healthy spread (0.065 nats a sample at the
+    # factor of 2), only the samples kept for outliers: ln(1 - share) a step, 0.01 nats
+    # (each way at its floor adds its floor times a density ratio of about one)
+    floors = 2 * len(FAILURE_WAYS) * FAILURE_WEIGHT_FLOOR
+    assert costs[-1] == pytest.approx(math.log1p(-OUTLIER_SHARE), abs=floors)
     assert weights[5, 4, 2] > 0.999
     static = evidence(0.0, np.zeros((7, 6)), nu, cov, z, None, np.zeros(7))
     assert static[5] == pytest.approx(math.log(0.5), abs=1e-3)  # drawn anew: ln 2 a step
@@ -422,6 +491,24 @@ def test_the_outlier_gate_keeps_out_what_the_offset_way_calls_an_outlier():
         got = gate.widths(np.array([k * math.sqrt(s)]), np.array([s]))
         assert got.tolist() == [wide if outlier_odds(k) > 0.0 else 0.0]
     assert 4.5 < brentq(outlier_odds, 0.0, 20.0) < 5.5
+    # a channel believed noisy is gated alike (its update's S is already the noisy reading's)
+    ways = np.full((7, 6, len(FAILURE_WAYS)), 0.01)
+    ways[:, :, 3] = 1.0 - 0.01 * (len(FAILURE_WAYS) - 1)
+    assert evidence.outlier_gate(ways) is None
+    ways[slot, q] = 0.01
+    ways[slot, q, FAILURE_WAYS.index("noise x8")] = 1.0 - 0.01 * (len(FAILURE_WAYS) - 1)
+    gate = evidence.outlier_gate(ways)
+    assert (gate.filters.tolist(), gate.outputs.tolist()) == ([slot], [q])
+    noisy_s = s + (8.0**2 - 1.0) * imu.sigmas[q] ** 2  # its inlier part: the reading at x8
+
+    def noisy_odds(k: float) -> float:
+        nu = k * math.sqrt(noisy_s)
+        outlier = math.log(OUTLIER_SHARE) + norm.logpdf(nu, 0.0, math.sqrt(noisy_s + wide))
+        return outlier - (math.log1p(-OUTLIER_SHARE) + norm.logpdf(nu, 0.0, math.sqrt(noisy_s)))
+
+    for k in np.linspace(-8.0, 8.0, 161):
+        got = gate.widths(np.array([k * math.sqrt(noisy_s)]), np.array([s]))
+        assert got.tolist() == [wide if noisy_odds(k) > 0.0 else 0.0]
 
 
 def test_a_declared_channel_reading_anything_is_read_with_its_weight_a_new_one_fully():
@@ -434,27 +521,32 @@ def test_a_declared_channel_reading_anything_is_read_with_its_weight_a_new_one_f
     modes = bank_modes(FaultMode.from_name("p"))
     evidence, imu = _evidence(modes)
     rng = np.random.default_rng(7)
-    weights = rng.dirichlet(np.ones(4), (7, 6))
+    weights = rng.dirichlet(np.ones(len(FAILURE_WAYS)), (7, 6))
     got = evidence.widths(weights)
     wide, noise = imu.ranges**2 / 3.0, imu.sigmas**2
     floor = FAILURE_WEIGHT_FLOOR
+    factors2 = np.array(NOISE_FACTORS) ** 2
     for j, mode in enumerate(modes):
         for i in range(6):
             if not mode.bits >> i & 1:
                 assert got[j, i] == 0.0
                 continue
+            noisy = np.maximum(weights[j, i, NOISE_WAY:] - floor, 0.0)
             if i == 3:  # p: declared, in every slot that holds it
                 w = weights[j, i, 0] + weights[j, i, 1] + weights[j, i, 3] - 3.0 * floor
-                # the information form: 1 / (R + width) = (1 - w) / R
-                assert 1.0 / (noise[i] + got[j, i]) == pytest.approx((1 - w) / noise[i])
-            else:
+                # the information form: 1 / (R + width) = (w_offset + sum w_k / k^2) / R
+                read = 1.0 - w - noisy.sum() + np.sum(noisy / factors2)
+                assert 1.0 / (noise[i] + got[j, i]) == pytest.approx(read / noise[i])
+            else:  # dead and stuck unread; noise widens the likelihood only
                 want = max(weights[j, i, 0] + weights[j, i, 1] - 2.0 * floor, 0.0) * wide[i]
                 assert got[j, i] == pytest.approx(want, rel=1e-12)
     # a settled offset (the floors elsewhere) is read at R alone, declared or not
-    settled = np.tile(np.array([floor, floor, 1.0 - 3.0 * floor, floor]), (7, 6, 1))
+    settled = np.full((7, 6, len(FAILURE_WAYS)), floor)
+    settled[:, :, 2] = 1.0 - (len(FAILURE_WAYS) - 1) * floor
     assert np.all(np.abs(evidence.widths(settled)) <= 1e-12 * noise.max())
     # a declared channel that reads anything for sure keeps the floors' share of its information
-    anything = np.tile(np.array([0.0, 0.0, 0.0, 1.0]), (7, 6, 1))
+    anything = np.zeros((7, 6, len(FAILURE_WAYS)))
+    anything[:, :, 3] = 1.0
     unread = 1.0 - 3.0 * floor
     assert evidence.widths(anything)[0, 3] == pytest.approx(noise[3] * unread / (1.0 - unread))
     # with nothing declared, "anything" widens nothing: the paper's bank learns its offsets

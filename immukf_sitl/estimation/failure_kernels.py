@@ -2,8 +2,8 @@
 
 :class:`~immukf_sitl.estimation.fault_modes.DeadOrAnyEvidence` scores each failed
 ``(mode, channel)`` pair of the bank by the ways it may have failed (dead, stuck, offset,
-anything). The pairs are a handful (six in the paper's bank, up to a dozen in a re-based one),
-so the arithmetic is a few dozen flops and numpy's dispatch of some sixty array calls was most
+anything, noisy). The pairs are a handful (six in the paper's bank, up to a dozen in a re-based
+one), so the arithmetic is a few dozen flops and numpy's dispatch of some sixty array calls was most
 of its cost (156 µs of a 1.1 ms real-air step). These kernels do the same per pair in one call.
 They are plain Python in the subset numba compiles; ``py_func`` of each is the interpreted
 reference that ``tests/test_compiled_kernels.py`` holds the compiled one to, and the
@@ -108,27 +108,32 @@ def _log_add_exp(a: float, b: float) -> float:
 
 
 @numba.njit(cache=True)
-def _log_sum_exp4(a: np.ndarray) -> float:
-    """``log sum exp`` of four numbers."""
-    top = max(max(a[0], a[1]), max(a[2], a[3]))
+def _log_sum_exp(a: np.ndarray) -> float:
+    """``log sum exp`` of a vector."""
+    top = -math.inf
+    for x in a:
+        top = max(top, x)
     if top == -math.inf:
         return -math.inf
-    return top + math.log(
-        math.exp(a[0] - top) + math.exp(a[1] - top) + math.exp(a[2] - top) + math.exp(a[3] - top)
-    )
+    total = 0.0
+    for x in a:
+        total += math.exp(x - top)
+    return top + math.log(total)
 
 
 @numba.njit(cache=True)
 def failure_update(
     pairs: np.ndarray, terms: np.ndarray, innovation: np.ndarray, innovation_cov: np.ndarray,
     widths: np.ndarray, weights: np.ndarray, log_likelihood: np.ndarray, spreads: np.ndarray,
+    noisy: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
     """The modes' log-likelihoods and weights after scoring the failed pairs by the ways to fail.
 
-    Each pair's factor is the predictive mixture of dead, stuck, offset and anything at the
-    mode's weights; the weights become its posterior, floored. The offset part is itself a
+    Each pair's factor is the predictive mixture of dead, stuck, offset, anything and noisy at
+    the mode's weights; the weights become its posterior, floored. The offset part is itself a
     mixture: the healthy reading plus the offset, or now and then an outlier of it, which a
-    width of ``V`` on that sample (the outlier gate) kept out of the update.
+    width of ``V`` on that sample (the outlier gate) kept out of the update. A noisy part is the
+    offset part at the noise of its factor, ``S + (k^2 - 1) R`` for ``S``.
 
     Parameters
     ----------
@@ -138,25 +143,29 @@ def failure_update(
         As for :func:`failure_terms`.
     widths : ndarray, shape (r, 6)
         The variance each mode's update gave each channel (zeros: none).
-    weights : ndarray, shape (r, 6, 4)
-        The modes' weights of dead, stuck, offset and anything, per channel.
+    weights : ndarray, shape (r, 6, 4 + m)
+        The modes' weights of dead, stuck, offset, anything and the ``m`` noise factors, per
+        channel.
     log_likelihood : ndarray, shape (r,)
         ``log Lambda_j`` (eq. 25) as the filters computed them.
     spreads : ndarray, shape (8,)
         ``V = range^2 / 3`` of the six channels, then the weights' floor and the share of
         outliers among the samples of a channel read through its offset.
+    noisy : ndarray, shape (6, m)
+        ``(k^2 - 1) R`` of each channel at each noise factor ``k``.
 
     Returns
     -------
     (ndarray, ndarray)
-        The log-likelihoods ``(r,)`` and the updated weights ``(r, 6, 4)``.
+        The log-likelihoods ``(r,)`` and the updated weights ``(r, 6, 4 + m)``.
     """
     floor, share = spreads[6], spreads[7]
+    n_ways = weights.shape[2]
     out = log_likelihood.copy()
     updated = weights.copy()
-    parts = np.empty(4)
-    told = np.empty(4)
-    log_w = np.empty(4)
+    parts = np.empty(n_ways)
+    told = np.empty(n_ways)
+    log_w = np.empty(n_ways)
     for f in range(pairs.shape[0]):
         j, i = pairs[f, 0], pairs[f, 1]
         nu = innovation[j, i]
@@ -174,28 +183,41 @@ def failure_update(
         told[0] = terms[f, 1] if terms[f, 3] > 0.5 else log_offset
         told[1] = terms[f, 2] if terms[f, 4] > 0.5 else log_offset
         told[2], told[3] = log_offset, log_anything
-        for s_ in range(4):
+        for m in range(n_ways - 4):  # the offset way at a noisier sensor, outliers and all
+            parts[4 + m] = _log_add_exp(
+                math.log1p(-share) + _log_normal(nu, narrow + noisy[i, m]),
+                math.log(share) + log_anything,
+            )
+            told[4 + m] = parts[4 + m]
+        for s_ in range(n_ways):
             log_w[s_] = math.log(max(weights[j, i, s_], floor))
-        out[j] += _log_sum_exp4(log_w + parts) - log_factor
+        out[j] += _log_sum_exp(log_w + parts) - log_factor
         joint = log_w + told
-        norm = _log_sum_exp4(joint)
+        norm = _log_sum_exp(joint)
         total = 0.0
-        for s_ in range(4):
+        for s_ in range(n_ways):
             w = max(math.exp(joint[s_] - norm), floor)
             updated[j, i, s_] = w
             total += w
-        for s_ in range(4):
+        for s_ in range(n_ways):
             updated[j, i, s_] /= total
     return out, updated
 
 
 @numba.njit(cache=True)
-def offset_leads(pairs: np.ndarray, weights: np.ndarray) -> np.ndarray:
-    """Whether each failed pair's offset way leads its weights (ties lead), ``(k,)``."""
-    out = np.empty(pairs.shape[0], dtype=np.bool_)
+def read_way(pairs: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """The way that leads each failed pair's weights (ties to the offset), ``(k,)``.
+
+    The offset way is 2, the noise ways 4 on (:data:`~.fault_modes.FAILURE_WAYS`).
+    """
+    out = np.empty(pairs.shape[0], dtype=np.int64)
     for f in range(pairs.shape[0]):
         w = weights[pairs[f, 0], pairs[f, 1]]
-        out[f] = w[2] >= max(max(w[0], w[1]), w[3])
+        best = 2
+        for s_ in range(w.shape[0]):
+            if w[s_] > w[best]:
+                best = s_
+        out[f] = best
     return out
 
 

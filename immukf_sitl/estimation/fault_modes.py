@@ -32,8 +32,8 @@ import numpy as np
 from immukf_sitl.estimation.failure_kernels import (
     failure_terms,
     failure_update,
-    offset_leads,
     outlier_widths,
+    read_way,
 )
 from immukf_sitl.estimation.models import MeasurementFn, SampleGate
 
@@ -172,10 +172,20 @@ FAULT_SIGNATURES: tuple[str, ...] = ("untrusted", "zero")
 
 #: variance of an offset spread evenly over the full scale, in full scales squared (``1 / 3``)
 OFFSET_PRIOR_VAR = 1.0 / 3.0
-#: the ways a channel fails, in the order of the failure weights
-FAILURE_WAYS: tuple[str, ...] = ("dead", "stuck", "offset", "anything")
-#: prior weights of how a failed channel failed (no preference)
-FAILURE_PRIOR = np.full(len(FAILURE_WAYS), 1.0 / len(FAILURE_WAYS))
+#: the noise factors (standard deviations over the sensor's) a noisy channel is scored at: a
+#: factor-of-two grid, so that any factor from 1.4 to 23 sits within sqrt(2) of one, where the
+#: nearest costs at most 0.15 nats a sample against the true one (the Kullback-Leibler
+#: divergence of two normals whose variances differ by 2)
+NOISE_FACTORS: tuple[float, ...] = (2.0, 4.0, 8.0, 16.0)
+#: the ways a channel fails, in the order of the failure weights: then one way per noise factor
+FAILURE_WAYS: tuple[str, ...] = ("dead", "stuck", "offset", "anything") + tuple(
+    f"noise x{k:g}" for k in NOISE_FACTORS
+)
+#: where the noise ways start among the failure weights
+NOISE_WAY = 4
+#: prior weights of how a failed channel failed: dead, stuck, offset, anything and noisy alike,
+#: the noise's share spread evenly over its factors (a prior uniform in the factor's logarithm)
+FAILURE_PRIOR = np.array([0.2] * NOISE_WAY + [0.2 / len(NOISE_FACTORS)] * len(NOISE_FACTORS))
 #: a weight of how a channel failed never falls below this (so that it can still change)
 FAILURE_WEIGHT_FLOOR = 1e-6
 #: a stuck reading repeats to within this many noise sigmas (a held register: exactly)
@@ -783,6 +793,12 @@ class DeadOrAnyEvidence:
         return np.concatenate([self.noise_var[:N_IMU], [self.n_sigma, STUCK_SIGMAS]])
 
     @cached_property
+    def _noisy(self) -> np.ndarray:
+        """``(6, m)``: ``(k^2 - 1) R`` of each channel at each of :data:`NOISE_FACTORS`."""
+        factors2 = np.asarray(NOISE_FACTORS) ** 2
+        return np.ascontiguousarray(np.outer(self.noise_var[:N_IMU], factors2 - 1.0))
+
+    @cached_property
     def _spreads(self) -> np.ndarray:
         """``V = range^2 / 3`` of the six channels and the weights' floor."""
         assert self.offset is not None
@@ -847,7 +863,7 @@ class DeadOrAnyEvidence:
         return pairs, t
 
     def prior_weights(self, r: int) -> np.ndarray | None:
-        """``(r, 6, 4)``: every mode's prior weights of each way to fail (:data:`FAILURE_WAYS`).
+        """``(r, 6, w)``: every mode's prior weights of each way to fail (:data:`FAILURE_WAYS`).
 
         None without offsets (the weights are those of a channel read through its offset).
         """
@@ -867,7 +883,10 @@ class DeadOrAnyEvidence:
         the channel is read with the information it has when read through its offset,
         ``(1 - w) / R`` with ``w`` the weight of dead, stuck and anything: a width
         ``R w / (1 - w)``, a weight where ``w V`` would be a switch. The update is linear in the
-        channel, so it cannot follow the mixture itself; this is its reading's weight.
+        channel, so it cannot follow the mixture itself; this is its reading's weight. A channel
+        believed noisy at factor ``k`` is read at its noise, ``(k^2 - 1) R`` more at that way's
+        weight on a newly failed channel, and with ``1 / k^2`` of the information on a declared
+        one.
         """
         if weights is None or self.offset is None:
             return None
@@ -875,13 +894,19 @@ class DeadOrAnyEvidence:
         # the floors are not a belief: a settled offset is read at R alone (a floor of 1e-6 on
         # two ways would leave 2e-6 V, 13 gyro noise sigmas, to it)
         sharp = weights[:, :, 0] + weights[:, :, 1] - 2.0 * FAILURE_WEIGHT_FLOOR
+        noisy = np.maximum(weights[:, :, NOISE_WAY:] - FAILURE_WEIGHT_FLOOR, 0.0)
+        # a newly failed channel believed noisy is read as the offset way reads it (its noise
+        # widens the likelihood only, as "anything" does; the gate keeps its outliers out)
         new = np.maximum(sharp, 0.0) * wide[None, :]
         # a declared channel's offset was learnt before: there "anything" is a reading it
         # cannot follow (a gain, a drift), and the channel informs the state in proportion to
-        # the weight it is read through its offset with: noise R / (1 - w)
+        # the weight it is read through its offset with, a noisy one at 1 / k^2 of it: noise
+        # R / (w_offset + sum w_k / k^2)
         unread = sharp + weights[:, :, 3] - FAILURE_WEIGHT_FLOOR
         unread = np.clip(unread, 0.0, 1.0 - _READ_FLOOR)
-        declared = self.noise_var[None, :N_IMU] * unread / (1.0 - unread)
+        factors2 = np.asarray(NOISE_FACTORS) ** 2
+        read = np.maximum(1.0 - unread - noisy.sum(axis=2) + noisy @ (1.0 / factors2), _READ_FLOOR)
+        declared = self.noise_var[None, :N_IMU] * (1.0 / read - 1.0)
         doubt = np.where(self._declared[None, :], declared, new)
         return doubt * self.offset.failed.T
 
@@ -902,23 +927,30 @@ class DeadOrAnyEvidence:
         offset nor the state, where read through the offset it taught the offset the spike and
         the healthy samples after it looked like a dead channel. A channel that has really
         moved is still followed: each sample beyond the gate moves the weights ``1 / s``
-        towards "anything", which ends the gate within three or four samples.
+        towards "anything", which ends the gate within three or four samples. A channel believed
+        noisy is gated alike: its update already reads it at its noise (:meth:`widths`), so ``S``
+        is the noisy reading's.
 
-        Returns the gate on the pairs whose offset way leads, or None when there are none.
+        Returns the gate on the pairs whose offset or noise way leads, or None when there are
+        none.
         """
         pairs = self._pairs
         if weights is None or self.offset is None or pairs is None:
             return None
-        leading = offset_leads(pairs, np.ascontiguousarray(weights, dtype=float))
+        way = read_way(pairs, np.ascontiguousarray(weights, dtype=float))
+        leading = (way == 2) | (way >= NOISE_WAY)
         if not leading.any():
             return None
         modes, channels = pairs[leading, 0], pairs[leading, 1]
         wide = self._spreads[channels]  # V of each channel
+        # a noise way's inlier part is the reading at its noise
+        factor = np.maximum(way[leading] - NOISE_WAY, 0)
+        noise = np.where(way[leading] >= NOISE_WAY, self._noisy[channels, factor], 0.0)
         # the outlier part wins where nu^2 / S > 2 ln((1 - s) / s) + ln((S + V) / S), nearly
         log_odds = math.log(OUTLIER_SHARE / (1.0 - OUTLIER_SHARE))
 
         def widths(innovation: np.ndarray, variance: np.ndarray) -> np.ndarray:
-            return outlier_widths(innovation, variance, wide, log_odds)
+            return outlier_widths(innovation, variance + noise, wide, log_odds)
 
         return SampleGate(modes, channels, widths)
 
@@ -939,9 +971,11 @@ class DeadOrAnyEvidence:
         """The modes' log-likelihoods, and each mode's weights of how each channel failed.
 
         A failed channel read through its offset (:class:`ChannelOffset`) failed one way, for
-        good (:data:`FAILURE_WAYS`): dead, stuck, offset (a bias, learnt and then held), or
-        anything in the range (a drift, a gain, noise: ``N(nu; 0, S + V)``), with the mode's
-        ``weights`` ``(r, 6, 4)`` (mixed from the other modes as the states are, eqs. 6-8).
+        good (:data:`FAILURE_WAYS`): dead, stuck, offset (a bias, learnt and then held),
+        anything in the range (a drift or a gain: ``N(nu; 0, S + V)``), or noisy (the offset
+        way at ``k`` times the sensor's noise, one way per factor of :data:`NOISE_FACTORS`),
+        with the mode's ``weights`` ``(r, 6, 8)`` (mixed from the other modes as the states
+        are, eqs. 6-8).
         Its factor is the predictive mixture ``sum_s w_s p_s(z)``, after which the weights are
         the posterior ``w_s p_s(z) / sum`` (floored at :data:`FAILURE_WEIGHT_FLOOR`): once the
         readings have shown which way the channel failed, the others cost nothing, where a
@@ -969,4 +1003,5 @@ class DeadOrAnyEvidence:
             np.ascontiguousarray(weights, dtype=float),
             np.ascontiguousarray(log_likelihood, dtype=float),
             self._spreads,
+            self._noisy,
         )

@@ -133,8 +133,9 @@ class ImmEstimate:
         Whether a measurement was used.
     innovation_var : ndarray or None, shape (r, nz)
         Variances of the innovations (the diagonals of ``P_zz``), None on a predict-only step.
-    failure_weights : ndarray or None, shape (r, 6, 4)
-        Each mode's weights of how each channel failed (dead, stuck, offset, anything), when the
+    failure_weights : ndarray or None, shape (r, 6, w)
+        Each mode's weights of how each channel failed (dead, stuck, offset, anything, noisy at
+        each factor: :data:`~.fault_modes.FAILURE_WAYS`), when the
         ``evidence`` carries them (:meth:`DeadOrAnyEvidence.score`); None otherwise.
     predicted_means : ndarray or None, shape (r, nx)
         Each mode's ``x(k+1|k)``, the state its innovations were taken against; None before

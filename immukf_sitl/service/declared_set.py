@@ -14,7 +14,8 @@ channel's failure: the mode ``D + c`` is always in the bank.
   zero plus noise, or the offset the slot learnt for it is beyond its uncertainty (the
   chi-square quantile ``signature_quantile`` either way), or the slot has seen it fail in a way
   no offset explains: read zero or hold still where it should have moved, or read what no
-  learnt offset fits (its weights of dead, stuck and anything at least the quantile), or
+  learnt offset fits (its weights of every way but the offset at least the quantile: dead,
+  stuck, anything, noisy), or
   slot 0, which reads it as healthy, cannot explain it (its residuals over the window, the
   largest left out, beyond the quantile: a noise or a gain, whose learnt offset stays near
   zero). Save for the zero test, the failure must also be *sustained*: over the same window, the
@@ -320,9 +321,10 @@ class DeclaredSetDetector:
 
         ``imu`` and ``imu_sigmas`` feed the zero test; ``innovations`` (each slot's residuals
         of its own prediction of each channel and their variances, ``(7, 6)`` each) feed the
-        inconsistency test and the life test; ``failure_weights`` ``(7, 6, 3)`` (how each slot
-        believes each channel failed: dead, stuck, offset) the stuck test; ``log_likelihoods``
-        ``(7,)`` (this step's, eq. 25; None on a step without an update) the sustained test;
+        inconsistency test and the life test; ``failure_weights`` ``(7, 6, w)`` (how each slot
+        believes each channel failed, :data:`~.fault_modes.FAILURE_WAYS`) the seen test;
+        ``log_likelihoods`` ``(7,)`` (this step's, eq. 25; None on a step without an update)
+        the sustained test;
         ``outliers`` ``(7, 6)`` (the samples each slot kept out of its update as outliers of a
         channel's learnt offset) the spike test; ``rest`` (each slot's log-likelihood ratio to
         slot 0 over the GPS fix, ``(7,)``, its normalised innovation squared
@@ -453,7 +455,7 @@ class DeclaredSetDetector:
     def _seen_failing(self, weights: np.ndarray | None, j: int, channel: int) -> bool:
         """Whether slot ``j`` has seen its channel fail in a way no healthy offset explains.
 
-        Its weights of dead, stuck and anything together at least ``signature_quantile``
+        Its weights of every way but the offset together at least ``signature_quantile``
         (dead and stuck move only on readings the reference predicts away from zero or from the
         held value).
         """
