@@ -908,6 +908,16 @@ def test_survival_per_kind_compares_with_the_same_airs_fault_free_twin() -> None
     text = matrix_markdown(matrix_summary(rows))
     assert "| bias | 4 | 0 (0 %) | 0.45 s | 0 (0 %) | – | 0 | 1/3 |" in text
     assert "  | bias | **not met** | **not met** | **not met** |" in text
+    assert "- zero false declarations in at least 3 h of fault-free flight: 0 in" in text
+    assert matrix_summary(rows)["real-air"]["acceptance"]["no_false_declarations_in_3h"] is False
+    flown = [{**r, "fault_free_s": "5400", "false_declarations_fault_free": "0"} for r in rows[:2]]
+    long_enough = matrix_summary(flown + rows[2:])["real-air"]["acceptance"]  # 3.0 h, none
+    assert long_enough["no_false_declarations_in_3h"] is True
+    one = [{**flown[0], "false_declarations_fault_free": "1"}, flown[1]]
+    assert (
+        matrix_summary(one + rows[2:])["real-air"]["acceptance"]["no_false_declarations_in_3h"]
+        is False
+    )
     # the same bias runs, each in time, named with its size and flown on as its twin
     fine = [
         {**r, "identified_within_1s": "true", "named_kind": "bias", "fault_value": "0.1",

@@ -16,6 +16,7 @@ import yaml
 
 from immukf_sitl.experiments.campaign import Campaign, UniformFaultTimes
 from immukf_sitl.experiments.campaign_summary import (
+    KIND_FAULT_FREE_HOURS,
     KIND_MEDIAN_DELAY_S,
     KIND_NAMED_SHARE,
     KIND_SIZE_ERROR,
@@ -412,11 +413,15 @@ def _pair_acceptance_lines(data: dict, mark: Callable[[bool], str]) -> list[str]
     ]
 
 
-def _kind_acceptance_lines(done: dict, mark: Callable[[bool], str]) -> list[str]:
+def _kind_acceptance_lines(data: dict, mark: Callable[[bool], str]) -> list[str]:
     """Each fault kind's criteria in the acceptance list (none for a zero-only campaign)."""
+    done, false = data["acceptance"], data["overall"]["false_declarations"]
     if "kinds" not in done:
         return []
     lines = [
+        f"- zero false declarations in at least {KIND_FAULT_FREE_HOURS:g} h of fault-free "
+        f"flight: {false['declarations']} in {_n(false['hours'], '.3f')} h: "
+        f"{mark(done['no_false_declarations_in_3h'])}.",
         f"- every fault kind (the table by fault kind): ≥ {100 * MATRIX_IDENTIFIED_SHARE:.0f} % "
         f"identified within {MATRIX_WITHIN_S:g} s with a median delay ≤ "
         f"{KIND_MEDIAN_DELAY_S:g} s; named right in ≥ {100 * KIND_NAMED_SHARE:.0f} % (size "
@@ -524,7 +529,7 @@ def _acceptance_lines(data: dict) -> list[str]:
         f"{mark(done['attitude_within_1_2x_of_ukf2'])}.",
     ]
     lines += _pair_acceptance_lines(data, mark)
-    lines += _kind_acceptance_lines(done, mark)
+    lines += _kind_acceptance_lines(data, mark)
     critical = data["critical"]
     if critical:
         lines.append(f"\n**Critical failures** ({len(critical)} runs; a run stops there):\n")

@@ -50,8 +50,11 @@ KIND_MEDIAN_DELAY_S = 0.3
 KIND_NAMED_SHARE = 0.90
 
 
-#: ... and the median relative error of the named size at most this (bias, drift, scale)
+#: ... and the median relative error of the named size at most this (bias, drift, scale);
+#: with no false declaration in at least this much fault-free flight (h): below 1 per hour
+#: at 95 %
 KIND_SIZE_ERROR = 0.20
+KIND_FAULT_FREE_HOURS = 3.0
 
 
 #: pairs: at least this share of the observable second faults identified within
@@ -436,7 +439,12 @@ def _acceptance(group: dict) -> dict[str, object]:
     ident, false, att = group["identification"], group["false_declarations"], group["attitude"]
     share = ident["identified_within_1s_share"]
     kinds = ident["by_kind"]
-    extra = {} if set(kinds) <= {"zero"} else {"kinds": _kind_acceptance(kinds)}
+    extra = {}
+    if not set(kinds) <= {"zero"}:
+        extra["kinds"] = _kind_acceptance(kinds)
+        extra["no_false_declarations_in_3h"] = (
+            false["declarations"] == 0 and (false["hours"] or 0.0) >= KIND_FAULT_FREE_HOURS
+        )
     return {
         **extra,
         "identified_within_1s": share is not None and share >= MATRIX_IDENTIFIED_SHARE,
