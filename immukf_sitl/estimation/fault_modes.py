@@ -183,6 +183,8 @@ FAILURE_WAYS: tuple[str, ...] = ("dead", "stuck", "offset", "anything") + tuple(
 )
 #: where the noise ways start among the failure weights
 NOISE_WAY = 4
+#: the information a reading at each noise factor carries, over the sensor's (``1 / k^2``)
+_NOISE_INFORMATION = 1.0 / np.asarray(NOISE_FACTORS) ** 2
 #: prior weights of how a failed channel failed: dead, stuck, offset, anything and noisy alike,
 #: the noise's share spread evenly over its factors (a prior uniform in the factor's logarithm)
 FAILURE_PRIOR = np.array([0.2] * NOISE_WAY + [0.2 / len(NOISE_FACTORS)] * len(NOISE_FACTORS))
@@ -904,8 +906,8 @@ class DeadOrAnyEvidence:
         # R / (w_offset + sum w_k / k^2)
         unread = sharp + weights[:, :, 3] - FAILURE_WEIGHT_FLOOR
         unread = np.clip(unread, 0.0, 1.0 - _READ_FLOOR)
-        factors2 = np.asarray(NOISE_FACTORS) ** 2
-        read = np.maximum(1.0 - unread - noisy.sum(axis=2) + noisy @ (1.0 / factors2), _READ_FLOOR)
+        read = 1.0 - unread - noisy.sum(axis=2) + noisy @ _NOISE_INFORMATION
+        read = np.maximum(read, _READ_FLOOR)
         declared = self.noise_var[None, :N_IMU] * (1.0 / read - 1.0)
         doubt = np.where(self._declared[None, :], declared, new)
         return doubt * self.offset.failed.T
