@@ -12,7 +12,12 @@ The ``busy`` case flies the same beside one CPU burner per core (less the other 
 which keep a core busy each), paced to the wall clock, as a ground station on a loaded machine
 would hear it in flight: a STATUSTEXT lost there is a detection the operator never sees.
 (Lock-step runs about twice faster than the air: beside the burners it once outran MAVProxy,
-which had recorded 31 of the 36 s when it was stopped.)
+which had recorded 31 of the 36 s when it was stopped.) MAVProxy needs about a quarter of a core
+for this stream (9.4 s of CPU for the 36 s flight, measured idle); starved below that, it falls
+behind and its socket's receive buffer (about a second of this stream) overflows, so the kernel
+drops the newest datagrams and the flight's last seconds never reach it. The busy case accepts a
+lost tail only where the kernel counted those drops on MAVProxy's socket, and still requires the
+declaration and a second of the faulted mode after it.
 """
 
 from __future__ import annotations
@@ -48,11 +53,14 @@ MP_NAMES = {"MP_NONE", "MP_AX", "MP_AY", "MP_AZ", "MP_P", "MP_Q", "MP_R"}
 RUN_TIMEOUT_S = 150.0
 MAVPROXY_READY_S = 20.0
 STOP_TIMEOUT_S = 10.0
-#: MAVProxy may still be working through its socket's backlog when the run ends (once, beside the
-#: CPU burners, it had recorded 31 of the 36 s): it is stopped once it has recorded nothing new
-#: from the estimator for this long, or after DRAIN_TIMEOUT_S
-DRAIN_QUIET_S = 2.0
+#: MAVProxy may still be working through its socket's backlog when the run ends: it is stopped
+#: once it has recorded the estimator's last probability, or has recorded nothing new from the
+#: estimator for DRAIN_QUIET_S (what it lost it will not record), or after DRAIN_TIMEOUT_S
+DRAIN_QUIET_S = 5.0
 DRAIN_TIMEOUT_S = 60.0
+#: seconds between looks at MAVProxy's tlog (each parses the whole file, ~0.5 s of CPU idle, taken
+#: from a MAVProxy that may be starved already)
+DRAIN_POLL_S = 1.0
 
 
 def _mavproxy_command() -> list[str] | None:
@@ -77,25 +85,58 @@ def _stop(proc: subprocess.Popen, timeout_s: float = STOP_TIMEOUT_S) -> bool:
     return graceful
 
 
-def _wait_until_recorded(tlog: Path) -> float:
-    """Block until the estimator's message count in ``tlog`` has not grown for DRAIN_QUIET_S
-    (bounded: MAVProxy's own heartbeats keep the file growing); the seconds waited."""
+def _last_probability_t_s(msgs: list) -> float | None:
+    """Time (s) of the estimator's last ``MP_Q`` among ``msgs``, or None."""
+    times = [
+        m.time_boot_ms / 1000.0
+        for m in msgs
+        if m.get_type() == "NAMED_VALUE_FLOAT"
+        and m.name == "MP_Q"
+        and (m.get_srcSystem(), m.get_srcComponent())
+        == (ESTIMATOR_SYSTEM_ID, ESTIMATOR_COMPONENT_ID)
+    ]
+    return max(times, default=None)
+
+
+def _wait_until_recorded(tlog: Path, last_sent_t_s: float) -> float:
+    """Block until ``tlog`` holds the estimator's ``MP_Q`` of ``last_sent_t_s``, or its estimator
+    messages stop growing for DRAIN_QUIET_S, or DRAIN_TIMEOUT_S; the seconds waited. The file is
+    parsed again only when it has grown (MAVProxy's own heartbeats grow it too)."""
     started = last_change = time.monotonic()
-    count = -1
+    count, size = -1, -1
     while time.monotonic() - started < DRAIN_TIMEOUT_S:
-        ours = 0
-        if tlog.exists() and tlog.stat().st_size > 0:
+        now_size = tlog.stat().st_size if tlog.exists() else 0
+        if now_size != size and now_size > 0:
+            size = now_size
+            msgs = _read_gcs_tlog(tlog)
+            recorded_t_s = _last_probability_t_s(msgs)
+            if recorded_t_s is not None and recorded_t_s >= last_sent_t_s:
+                break
             ours = sum(
                 (m.get_srcSystem(), m.get_srcComponent())
                 == (ESTIMATOR_SYSTEM_ID, ESTIMATOR_COMPONENT_ID)
-                for m in _read_gcs_tlog(tlog)
+                for m in msgs
             )
-        if ours != count:
-            count, last_change = ours, time.monotonic()
-        elif time.monotonic() - last_change >= DRAIN_QUIET_S:
+            if ours != count:
+                count, last_change = ours, time.monotonic()
+        if time.monotonic() - last_change >= DRAIN_QUIET_S:
             break
-        time.sleep(0.25)
+        time.sleep(DRAIN_POLL_S)
     return time.monotonic() - started
+
+
+def _udp_drops(port: int) -> int | None:
+    """Datagrams the kernel dropped on the loopback UDP socket bound to ``port`` (its receive
+    buffer full), from Linux's /proc/net/udp; None where that is not readable."""
+    table = Path("/proc/net/udp")
+    if not table.is_file():
+        return None
+    local = f"0100007F:{port:04X}"
+    for line in table.read_text().splitlines()[1:]:
+        fields = line.split()
+        if len(fields) > 12 and fields[1] == local:
+            return int(fields[-1])
+    return None
 
 
 def _kill(proc: subprocess.Popen) -> None:
@@ -228,7 +269,10 @@ def test_run_with_mavproxy_ground_station(tmp_path: Path, cpu_burners: int) -> N
         run_s = time.monotonic() - started - ready_s
         assert run.returncode == 0, f"run failed ({run.returncode}): {stderr[-3000:]}"
         assert mavproxy.poll() is None, f"MAVProxy died: {gcs_out.read_text()[-2000:]}"
-        drain_s = _wait_until_recorded(gcs_tlog)
+        last_sent_t_s = _last_probability_t_s(_read_gcs_tlog(run_dir / "estimator.tlog"))
+        assert last_sent_t_s is not None, "the estimator's own tlog holds no MP_Q"
+        drain_s = _wait_until_recorded(gcs_tlog, last_sent_t_s)
+        dropped = _udp_drops(port)  # before MAVProxy closes its socket
         stopped_by_sigint = _stop(mavproxy)
     finally:
         for proc in (run, mavproxy):
@@ -236,7 +280,7 @@ def test_run_with_mavproxy_ground_station(tmp_path: Path, cpu_burners: int) -> N
                 _kill(proc)
     print(
         f"e2e ({cpu_burners} CPU burners): MAVProxy ready {ready_s:.1f} s, run {run_s:.1f} s, "
-        f"drained {drain_s:.1f} s, "
+        f"drained {drain_s:.1f} s, kernel dropped {dropped} datagrams on its socket, "
         f"MAVProxy {'stopped by SIGINT' if stopped_by_sigint else 'killed'}"
     )
 
@@ -277,8 +321,14 @@ def test_run_with_mavproxy_ground_station(tmp_path: Path, cpu_burners: int) -> N
     last_t = max(t for t, _ in mp_q)
     last_second = [p for t, p in mp_q if t >= last_t - 1.0]
     assert before and max(before) < 0.5, max(before, default=None)
-    assert last_t >= DURATION_S - 1.0, last_t
     assert last_second and min(last_second) > 0.9, min(last_second, default=None)
+    if cpu_burners and dropped:
+        # the kernel dropped the tail at a starved MAVProxy's full socket (module docstring):
+        # it must still have heard the declaration and a second of the faulted mode after it
+        print(f"e2e: MAVProxy heard {last_t:.1f} of the {last_sent_t_s:.1f} s sent")
+        assert last_t >= fault["detected_t_s"] + 1.0, (last_t, fault)
+    else:
+        assert last_t >= last_sent_t_s, (last_t, last_sent_t_s, dropped)
 
     texts = [m.text for m in ours if m.get_type() == "STATUSTEXT"]
     assert any(t.startswith("IMM: q gyro fault detected, p=") for t in texts), texts

@@ -15,7 +15,9 @@ output like a ground station to show progress, and when the flight ends writes i
 With ``--sign`` (or ``--signing-key FILE``) all three processes sign what they send and accept
 only correctly signed input; the summary's ``stream.signing`` holds what each rejected.
 ``lag_us`` is serve's: from the arrival of an IMU datagram at its socket to the departure of
-the ATTITUDE computed from it (median, p99, max over the last 10 minutes of ATTITUDE).
+the ATTITUDE computed from it (median, p99, max over the last 10 minutes of ATTITUDE). With
+``--realtime`` a loaded machine can leave serve seconds behind the air; when the sim ends, serve
+is stopped only once it has estimated the flight's last sample (or its output has stalled).
 """
 
 from __future__ import annotations
@@ -40,6 +42,7 @@ from immukf_sitl.experiments.report import (
 )
 from immukf_sitl.mavlink.flightlog import merge_flight_log, read_estimator_log, read_flight_log
 from immukf_sitl.mavlink.listener import GroundStationListener
+from immukf_sitl.mavlink.publish import OutputRates
 from immukf_sitl.mavlink.serve import READY as SERVE_READY
 from immukf_sitl.mavlink.serve import WARMING_UP as SERVE_WARMING_UP
 from immukf_sitl.mavlink.signing import load_key, write_key
@@ -58,6 +61,10 @@ WARM_UP_TIMEOUT_S = 900.0
 ORPHAN_IDLE_EXIT_S = 30.0
 #: The sim's lock-step patience: generous, since run watches its children itself.
 ACK_TIMEOUT_S = 60.0
+#: After the sim's last sample, serve is stopped once its published time reaches the flight's end,
+#: or has not advanced for this long (with --realtime on a loaded machine it was once 15 s behind
+#: the air when the sim ended: stopping it then dropped a third of the flight, fault included).
+CATCH_UP_QUIET_S = 5.0
 
 
 @dataclass(frozen=True)
@@ -181,6 +188,7 @@ def fly_chain(scenario: Scenario, options: RunOptions, files: RunFiles) -> Chain
         sim_out = sim.stop()
         if sim.proc.returncode != 0:
             raise UserError(f"sim failed: {sim.last_error()}")
+        _await_estimator(listener, serve, duration_s)
         time.sleep(0.3)
         listener.poll()
         serve_out = serve.stop()
@@ -196,6 +204,40 @@ def fly_chain(scenario: Scenario, options: RunOptions, files: RunFiles) -> Chain
         proxy=_last_json(proxy_out, "proxy"),
         wall_s=time.monotonic() - started,
     )
+
+
+def _await_estimator(listener: GroundStationListener, serve: Child, end_t_s: float) -> None:
+    """Let serve work through what still waits in its socket once the sim has sent its last sample.
+
+    Returns when its published time reaches ``end_t_s`` (less one probability period), or has
+    not advanced for CATCH_UP_QUIET_S; says on stderr how far it got if it fell short.
+    """
+    end_heard_t_s = end_t_s - 1.0 / OutputRates.probabilities_hz - 1e-3
+    heard_t_s, advanced, last_report = listener.t_s, time.monotonic(), 0.0
+    while listener.t_s < end_heard_t_s:
+        if serve.proc.poll() is not None:
+            raise UserError(f"serve stopped during the flight: {serve.last_error()}")
+        listener.poll()
+        now = time.monotonic()
+        if listener.t_s > heard_t_s:
+            heard_t_s, advanced = listener.t_s, now
+        elif now - advanced >= CATCH_UP_QUIET_S:
+            if heard_t_s < end_t_s - 1.0:
+                print(
+                    f"run: the estimator's output stopped at t={heard_t_s:.1f} of {end_t_s:.1f} s "
+                    f"(nothing new for {CATCH_UP_QUIET_S:g} s)",
+                    file=sys.stderr,
+                    flush=True,
+                )
+            return
+        if now - last_report >= 2.0:
+            print(
+                f"{listener.line(end_t_s)}  (sim done, the estimator catching up)",
+                file=sys.stderr,
+                flush=True,
+            )
+            last_report = now
+        time.sleep(0.05)
 
 
 def run_scenario(scenario: Scenario, options: RunOptions, out_dir: Path) -> Summary:
