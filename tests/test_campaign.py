@@ -878,44 +878,6 @@ def test_errors_after_a_declaration_cover_the_flight_from_it_on() -> None:
     }
 
 
-def test_the_matched_filter_gives_survival_its_floor() -> None:
-    """UKF-1, told the fault from the start, is judged as the IMM is (from the onset): the
-    survival the remaining sensors allow, beside the IMM's."""
-    from immukf_sitl.experiments.campaign_render import matrix_markdown
-    from immukf_sitl.experiments.campaign_summary import matrix_summary
-
-    def run(variant: str, fault: str, after_att: str, **cells: str) -> dict[str, str]:
-        cells.setdefault("observable_t_s", "40.2")
-        return _row(variant=variant, fault=fault, fault_kind="zero", n_faults="1",
-                    fault_t_s="40", detection_delay_s="0.2",
-                    est_att_mse_after_decl_deg2=after_att, est_pos_max_after_decl_m="5",
-                    **cells)  # fmt: skip
-
-    rows = [
-        _row(variant="imm", fault="none", n_faults="0", est_att_mse_deg2="2.0"),
-        run("imm", "p", "9.0", identified_within_1s="true"),  # 4.5x: not survived
-        run("imm", "q", "2.5", identified_within_1s="true"),  # 1.25x: survived
-        run("ukf1", "p", "8.0"),  # the floor itself is 4x: the sensors, not the detector
-        run("ukf1", "q", "2.8"),  # 1.4x
-        run("ukf1", "r", "2.0", observable_t_s=""),  # never observable: not counted
-        run("ukf1", "x", "2.0", replicate="1"),  # no fault-free twin: not counted
-        _row(variant="ukf1", fault="x+q", n_faults="2", fault_kind="zero",
-             observable_t_s="40.2", est_att_mse_after_decl_deg2="1.0"),  # a pair: not counted
-    ]  # fmt: skip
-    zero = matrix_summary(rows)["real-air"]["overall"]["identification"]["by_kind"]["zero"]
-    assert (zero["survived"], zero["with_fault_free_twin"]) == (1, 2)
-    assert (zero["matched_survived"], zero["matched_with_twin"]) == (1, 2)
-    text = matrix_markdown(matrix_summary(rows))
-    assert "| zero | 2 | 2 (100 %) | 0.20 s | 0 (0 %) | – | 0 | 1/2 | 1/2 |" in text
-    # without matched runs a zero-only campaign keeps its report as it was
-    without = matrix_summary([r for r in rows if r["variant"] == "imm"])
-    assert (
-        "matched_with_twin"
-        not in without["real-air"]["overall"]["identification"]["by_kind"]["zero"]
-    )
-    assert "**By fault kind**" not in matrix_markdown(without)
-
-
 def test_survival_per_kind_compares_with_the_same_airs_fault_free_twin() -> None:
     """Survived: declared, stable, attitude MSE after the declaration at most 1.5 times the
     twin's (same air, airframe draw and loop) and position error under 20 m."""

@@ -343,8 +343,7 @@ def _kind_lines(overall: dict) -> list[str]:
     Zero-only campaigns have none.
     """
     kinds = overall["identification"].get("by_kind", {})
-    floor = any("matched_with_twin" in k for k in kinds.values())
-    if set(kinds) <= {"zero"} and not floor:
+    if set(kinds) <= {"zero"}:
         return []
     lines = [
         "\n**By fault kind** (all airs; the size error is the median relative error of the "
@@ -352,33 +351,21 @@ def _kind_lines(overall: dict) -> list[str]:
         f"declared, not lost, the attitude MSE after the declaration at most "
         f"{SURVIVAL_ATTITUDE_RATIO:g} times the same air's and airframe's fault-free flight and "
         f"the position error after it under {SURVIVAL_POSITION_M:g} m, over the runs that "
-        "have that flight"
-        + (
-            "; matched filter: UKF-1 told the fault from the start, judged alike from the "
-            "onset, the floor of what the remaining sensors allow"
-            if floor
-            else ""
-        )
-        + "):\n",
+        "have that flight):\n",
         "| kind | observable | identified within 1 s | median delay | named right | size error "
-        "| runs lost | survived |" + (" matched filter survived |" if floor else ""),
-        "|---|---|---|---|---|---|---|---|" + ("---|" if floor else ""),
+        "| runs lost | survived |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for kind, k in kinds.items():
         n = k["observable"]
         twinned = k.get("with_fault_free_twin", 0)
         delay = k.get("detection_delay_s_median")
-        matched = (
-            f" {k['matched_survived']}/{k['matched_with_twin']} |"
-            if "matched_with_twin" in k
-            else (" – |" if floor else "")
-        )
         lines.append(
             f"| {kind} | {n} | {k['identified_within_1s']} ({_pct(k['identified_within_1s'], n)})"
             f" | {'–' if delay is None else f'{delay:.2f} s'}"
             f" | {k['named_right']} ({_pct(k['named_right'], n)}) | "
             f"{_n(k['size_error_median'], '.1%')} | {k.get('lost', 0)} | "
-            f"{k.get('survived', 0)}/{twinned} |{matched}"
+            f"{k.get('survived', 0)}/{twinned} |"
         )
     return lines
 

@@ -172,9 +172,6 @@ def execute_run(spec: RunSpec) -> dict[str, str]:
         if spec.variant == "imm":
             declared_t_s = identification["detected_t_s"]
             row.update(errors_after_declaration(run, settle_s, declared_t_s))
-        elif spec.variant == "ukf1" and spec.mode.channels:
-            # the matched filter is told the fault from the start: its window opens at the onset
-            row.update(errors_after_declaration(run, settle_s, spec.fault_t_s))
         row["status"] = "critical" if monitor.reason else "stable"
         row["failure"] = monitor.reason or ""
         row["failure_t_s"] = monitor.t_s

@@ -89,7 +89,7 @@ def pre_fault_declarations(row: Row) -> list[str]:
     return out
 
 
-def _identification(imm: Sequence[Row], matched: Sequence[Row] = ()) -> dict[str, object]:
+def _identification(imm: Sequence[Row]) -> dict[str, object]:
     faulted = [r for r in imm if r["fault"] != "none"]
     # a run stopped by a critical failure before its fault never had the fault
     before = [r for r in faulted if _float(r["flown_s"]) < _float(r["fault_t_s"])]
@@ -108,12 +108,7 @@ def _identification(imm: Sequence[Row], matched: Sequence[Row] = ()) -> dict[str
         }
     share = len(within) / len(observable) if observable else math.nan
     return {
-        "by_kind": _by_kind(
-            observable,
-            within,
-            _fault_free_attitude(imm),
-            [r for r in matched if r["observable_t_s"] != ""],
-        ),
+        "by_kind": _by_kind(observable, within, _fault_free_attitude(imm)),
         "faulted_runs": len(faulted),
         "observable": len(observable),
         "ended_before_fault": len(before),
@@ -169,15 +164,10 @@ def _by_kind(
     observable: Sequence[Row],
     within: Sequence[Row],
     fault_free: dict[tuple[str, str, str], float],
-    matched: Sequence[Row] = (),
 ) -> dict[str, dict[str, object]]:
     """Per fault kind: identified within the bound, its delay, named right, the size's error.
 
     And survival: runs lost, and :func:`survived` over the runs whose twin flew fault-free.
-    Where the campaign flew the matched filter (UKF-1, told the fault from the start) on the
-    same faults, ``matched_survived`` of ``matched_with_twin`` is :func:`survived` of its runs
-    from the onset on: what the remaining sensors allow once no detection is needed, the floor
-    the IMM's survival is to be read against.
     """
     out: dict[str, dict[str, object]] = {}
     for kind in _ordered([r.get("fault_kind") or "zero" for r in observable]):
@@ -200,16 +190,6 @@ def _by_kind(
             "with_fault_free_twin": len(twinned),
             "survived": sum(survived(r, fault_free[_flight_key(r)]) for r in twinned),
         }
-        floor = [
-            r
-            for r in matched
-            if (r.get("fault_kind") or "zero") == kind and _flight_key(r) in fault_free
-        ]
-        if floor:
-            out[kind]["matched_with_twin"] = len(floor)
-            out[kind]["matched_survived"] = sum(
-                survived(r, fault_free[_flight_key(r)]) for r in floor
-            )
     return out
 
 
@@ -384,10 +364,7 @@ def _pairs(rows: Sequence[Row]) -> dict[str, object]:
 def _matrix_group(rows: Sequence[Row]) -> dict[str, object]:
     imm = [r for r in rows if r["variant"] == "imm"]
     return {
-        "identification": _identification(
-            [r for r in imm if not is_pair_row(r)],
-            [r for r in rows if r["variant"] == "ukf1" and r.get("n_faults") == "1"],
-        ),
+        "identification": _identification([r for r in imm if not is_pair_row(r)]),
         "false_declarations": _false_declarations(imm),
         "attitude": _attitude(_attitude_flights(rows)),
     }
