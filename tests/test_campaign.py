@@ -905,6 +905,17 @@ def test_survival_per_kind_compares_with_the_same_airs_fault_free_twin() -> None
     assert (bias["survived"], bias["with_fault_free_twin"], bias["lost"]) == (1, 3, 0)
     assert bias["detection_delay_s_median"] == pytest.approx(0.45)
     assert (drift["survived"], drift["with_fault_free_twin"], drift["lost"]) == (0, 2, 1)
+    # the twin's error from its own onset on, where it has one, not its whole flight's
+    onset = [{**rows[0], "est_att_mse_after_decl_deg2": "1.9"}, *rows[1:]]
+    by_onset = matrix_summary(onset)["real-air"]["overall"]["identification"]["by_kind"]
+    assert by_onset["bias"]["survived"] == 0  # q: 2.9 > 1.5 x 1.9
+    onset[0]["est_att_mse_after_decl_deg2"] = "2.0"
+    assert (
+        matrix_summary(onset)["real-air"]["overall"]["identification"]["by_kind"]["bias"][
+            "survived"
+        ]
+        == 1
+    )
     text = matrix_markdown(matrix_summary(rows))
     assert "| bias | 4 | 0 (0 %) | 0.45 s | 0 (0 %) | – | 0 | 1/3 |" in text
     assert "  | bias | **not met** | **not met** | **not met** |" in text

@@ -349,9 +349,9 @@ def _kind_lines(overall: dict) -> list[str]:
         "\n**By fault kind** (all airs; the size error is the median relative error of the "
         "named size where the kind was named right, for bias, drift and scale; survived: "
         f"declared, not lost, the attitude MSE after the declaration at most "
-        f"{SURVIVAL_ATTITUDE_RATIO:g} times the same air's and airframe's fault-free flight and "
-        f"the position error after it under {SURVIVAL_POSITION_M:g} m, over the runs that "
-        "have that flight):\n",
+        f"{SURVIVAL_ATTITUDE_RATIO:g} times the same air's and airframe's fault-free flight's "
+        f"from its own drawn onset on, and the position error after it under "
+        f"{SURVIVAL_POSITION_M:g} m, over the runs that have that flight):\n",
         "| kind | observable | identified within 1 s | median delay | named right | size error "
         "| runs lost | survived |",
         "|---|---|---|---|---|---|---|---|",

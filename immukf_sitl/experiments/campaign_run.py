@@ -170,7 +170,9 @@ def execute_run(spec: RunSpec) -> dict[str, str]:
             identification = {"observable_t_s": identification["observable_t_s"]}
         row.update(identification)
         if spec.variant == "imm":
-            declared_t_s = identification["detected_t_s"]
+            # a fault-free flight is measured from its own drawn onset on, so that survival
+            # compares the same phase of flight, past the alignment's first errors
+            declared_t_s = identification["detected_t_s"] if spec.mode.channels else spec.fault_t_s
             row.update(errors_after_declaration(run, settle_s, declared_t_s))
         row["status"] = "critical" if monitor.reason else "stable"
         row["failure"] = monitor.reason or ""

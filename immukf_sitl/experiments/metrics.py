@@ -23,7 +23,8 @@ Definitions (docs/results/paper/report.md repeats them for readers of the tables
   run: no declaration at all); false declarations are those of a mode other than the active one.
 - **After the declaration**: the attitude MSE and the largest position error of the estimate
   from the declaration that names the fault's channel to the end of the flight, to compare
-  with the same air's and airframe's fault-free flight (survival).
+  with the same air's and airframe's fault-free flight (survival); a fault-free IMM run gives
+  them from its own drawn onset on, the same phase of flight.
 - **Pair runs** (two channels, the second failing a gap after the first): the run's
   identification columns describe the first fault (the first declaration at or after it must
   name the first channel), the ``second_*`` columns the second; each channel's detection is the
