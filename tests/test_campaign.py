@@ -918,6 +918,15 @@ def test_survival_per_kind_compares_with_the_same_airs_fault_free_twin() -> None
     )
     text = matrix_markdown(matrix_summary(rows))
     assert "| bias | 4 | 0 (0 %) | 0.45 s | 0 (0 %) | – | 0 | 1/3 |" in text
+    # by channel: q 2.9 / 2.0 survived; p 3.1 / 2.0 not; r lost at 1.0 / 2.0; z never declared
+    channels = matrix_summary(rows)["real-air"]["airs"]["calm"]["identification"]["by_channel"]
+    assert (channels["q"]["survived"], channels["q"]["with_fault_free_twin"]) == (1, 1)
+    assert channels["q"]["attitude_ratio_median"] == pytest.approx(1.45)
+    assert (channels["p"]["survived"], channels["r"]["survived"]) == (0, 0)
+    assert channels["z"]["attitude_ratio_median"] is None and channels["z"]["survived"] == 0
+    assert channels["y"]["with_fault_free_twin"] == 0  # replicate 1 flew no fault-free twin
+    assert "| calm | 0/0 | 0/0 | 0/1 | 0/1 (1.6x) | 1/1 (1.4x) | 0/1 (0.5x) |" in text
+    assert "| wind6-light |" not in text and "| light | 0/1 (1.5x) |" in text
     assert "  | bias | **not met** | **not met** | **not met** |" in text
     assert "- zero false declarations in at least 3 h of fault-free flight: 0 in" in text
     assert matrix_summary(rows)["real-air"]["acceptance"]["no_false_declarations_in_3h"] is False

@@ -334,6 +334,37 @@ def _identification_lines(groups: list[tuple[str, dict]]) -> list[str]:
         ch = g["identification"]["by_channel"]
         cells = " | ".join(f"{c['identified_within_1s']}/{c['observable']}" for c in ch.values())
         lines.append(f"| {air} | {cells} |")
+    return lines + _survival_lines(groups)
+
+
+def _survival_lines(groups: list[tuple[str, dict]]) -> list[str]:
+    """Per air and channel: survived of the runs with a fault-free twin, and their median ratio.
+
+    The ratio is the attitude MSE after the declaration over the twin's; no table when no run
+    has a twin.
+    """
+    if not any(
+        c.get("with_fault_free_twin")
+        for _, g in groups
+        for c in g["identification"]["by_channel"].values()
+    ):
+        return []
+    lines = [
+        f"\nSurvived by channel (survived / with a fault-free twin; in brackets the median "
+        f"attitude MSE after the declaration over the twin's, {SURVIVAL_ATTITUDE_RATIO:g} at "
+        "most to survive):\n",
+        "| air | x | y | z | p | q | r |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for air, g in groups:
+        cells = []
+        for c in g["identification"]["by_channel"].values():
+            ratio = c["attitude_ratio_median"]
+            shown = (
+                "" if ratio is None else f" ({ratio:.2g}x)" if ratio < 10 else f" ({ratio:.0f}x)"
+            )
+            cells.append(f"{c['survived']}/{c['with_fault_free_twin']}{shown}")
+        lines.append(f"| {air} | {' | '.join(cells)} |")
     return lines
 
 

@@ -99,16 +99,26 @@ def _identification(imm: Sequence[Row]) -> dict[str, object]:
     wrong = [r for r in observable if r["identified"] not in ("none", r["fault"])]
     missed = [r for r in observable if r["identified"] == "none"]
     delays = [_float(r["detection_delay_s"]) for r in observable if r["detection_delay_s"]]
+    fault_free = _fault_free_attitude(imm)
     channels = {}
     for channel in ("x", "y", "z", "p", "q", "r"):
         mine = [r for r in observable if r["fault"] == channel]
+        twinned = [r for r in mine if _flight_key(r) in fault_free]
+        ratios = [
+            _float(r.get("est_att_mse_after_decl_deg2", "")) / fault_free[_flight_key(r)]
+            for r in twinned
+        ]
         channels[channel] = {
             "observable": len(mine),
             "identified_within_1s": sum(r in within for r in mine),
+            "with_fault_free_twin": len(twinned),
+            "survived": sum(survived(r, fault_free[_flight_key(r)]) for r in twinned),
+            # over the runs declared (a run never declared has no error after a declaration)
+            "attitude_ratio_median": _number(_median([x for x in ratios if math.isfinite(x)])),
         }
     share = len(within) / len(observable) if observable else math.nan
     return {
-        "by_kind": _by_kind(observable, within, _fault_free_attitude(imm)),
+        "by_kind": _by_kind(observable, within, fault_free),
         "faulted_runs": len(faulted),
         "observable": len(observable),
         "ended_before_fault": len(before),
