@@ -455,7 +455,13 @@ def test_matrix_summary_on_a_hand_made_run_set() -> None:
     assert counts == (3, 1, 1) and ident["ended_before_fault"] == 1
     assert (ident["identified_later"], ident["wrong_mode_first"], ident["missed"]) == (1, 1, 0)
     assert ident["identified_within_1s_share"] == pytest.approx(1 / 3)
-    assert ident["by_channel"]["q"] == {"observable": 1, "identified_within_1s": 1}
+    assert ident["by_channel"]["q"] == {
+        "observable": 1,
+        "identified_within_1s": 1,
+        "with_fault_free_twin": 1,
+        "survived": 0,  # a row without the error after its declaration: nothing to survive with
+        "attitude_ratio_median": None,
+    }
     false = summary["overall"]["false_declarations"]
     assert false["declarations"] == 2 and false["hours"] == pytest.approx(292.0 / 3600.0, abs=1e-6)
     assert false["by_mode"] == {"q": 1, "x": 1} and false["runs_with_declarations"] == 2
