@@ -7,8 +7,9 @@ Beard & McLain, *Small Unmanned Aircraft*, 2012, ch. 7; the specs and their defa
   plus zero-mean white Gaussian noise and an optional constant bias — the HIGHRES_IMU fields
   ``xacc..zacc``, ``xgyro..zgyro``.
 - GPS, at ``rate_hz`` (1 Hz): position with a first-order Gauss-Markov error per axis
-  (B&M eq. 7.17, ``nu[n+1] = exp(-k_GPS T) nu[n] + eta[n]``, ``eta ~ N(0, sigma^2)``; north/east
-  sigma 0.21 m, height 0.40 m, ``k_GPS = 1/1100`` 1/s), ground speed with white noise
+  (B&M eq. 7.17, ``nu[n+1] = exp(-k_GPS T) nu[n] + eta[n]``, ``eta ~ N(0, sigma^2)`` at
+  ``T = 1 s`` and the same process sampled at other rates; north/east sigma 0.21 m, height
+  0.40 m, ``k_GPS = 1/1100`` 1/s), ground speed with white noise
   (0.05 m/s) and course with white noise of ``0.05 / Vg`` rad (B&M eq. 7.19-7.20). Outputs are
   latitude/longitude (deg), height (m), ground speed (m/s) and course (rad, wrapped); the MAVLink
   layer converts them to GPS_RAW_INT units.
@@ -127,8 +128,9 @@ class GpsModel:
     Notes
     -----
     The Gauss-Markov errors start at zero (as in B&M's simulation) and then wander with a
-    stationary standard deviation of ``sigma / sqrt(1 - exp(-2 k_GPS T))`` (about 4.9 m north and
-    east for the defaults); they are propagated once per fix.
+    stationary standard deviation of ``sigma / sqrt(1 - exp(-2 k_GPS 1 s))`` (about 4.9 m north
+    and east for the defaults) at any rate; they are propagated once per fix, with the share of
+    the driving noise a fix of that period takes (``GpsSpec.driving_sigmas_ned_m``).
     """
 
     def __init__(self, spec: GpsSpec, rng: np.random.Generator, start_time_s: float = 0.0) -> None:
@@ -139,9 +141,7 @@ class GpsModel:
         self._start_time_s = float(start_time_s)
         self._error_ned_m = np.zeros(3)
         self._decay = math.exp(-spec.k_gps_per_s * spec.period_s)
-        self._sigma_ned_m = np.array(
-            [spec.north_east_sigma_m, spec.north_east_sigma_m, spec.height_sigma_m]
-        )
+        self._sigma_ned_m = spec.driving_sigmas_ned_m()
 
     @property
     def position_error_ned_m(self) -> np.ndarray:

@@ -81,6 +81,29 @@ def test_gps_fixes_at_the_configured_rate(truth):
     assert times == [0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0]
 
 
+def test_a_faster_gps_samples_the_same_error_process(truth):
+    """The sigmas are a 1 Hz fix's: at 5 Hz each fix takes its share, so after 1 s the error's
+    variance is the 1 Hz fix's sigma squared, and the stationary sigma is the 1 Hz one."""
+    one, five = GpsSpec(), GpsSpec(rate_hz=5.0)
+    assert np.array_equal(one.driving_sigmas_ned_m(), [0.21, 0.21, 0.40])  # 1 Hz: as given
+
+    def stationary(spec: GpsSpec) -> np.ndarray:
+        return spec.driving_sigmas_ned_m() / math.sqrt(
+            -math.expm1(-2.0 * spec.k_gps_per_s * spec.period_s)
+        )
+
+    assert np.allclose(stationary(five), stationary(one), rtol=1e-12)
+    after_1s = []
+    for seed in range(3000):
+        gps = GpsModel(five, np.random.default_rng(seed))
+        for k in range(6):  # fixes at 0, 0.2, ..., 1.0 s; the first starts the error at zero
+            gps.read(dataclasses.replace(truth, time_s=0.2 * k))
+        after_1s.append(gps.position_error_ned_m)
+    variance = np.var(after_1s, axis=0)
+    # 3000 draws: the sample variance's relative sigma is sqrt(2 / 3000), 2.6 %; 4 sigmas
+    assert np.allclose(variance, np.array([0.21, 0.21, 0.40]) ** 2, rtol=0.11), variance
+
+
 def gauss_markov_run(truth: TruthState, n: int, seed: int):
     spec = GpsSpec()
     gps = GpsModel(spec, np.random.default_rng(seed))

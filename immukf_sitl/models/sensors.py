@@ -154,7 +154,9 @@ class GpsSpec:
     rate_hz : float
         Fix rate (Hz).
     north_east_sigma_m, height_sigma_m : float
-        Driving-noise standard deviations of the Gauss-Markov position errors (m).
+        Driving-noise standard deviations of the Gauss-Markov position errors at a 1 Hz fix
+        (m): the error is one process in time, whatever the rate it is sampled at
+        (:meth:`driving_sigmas_ned_m`).
     k_gps_per_s : float
         Inverse time constant of the Gauss-Markov errors (1/s).
     ground_speed_sigma_mps : float
@@ -188,6 +190,24 @@ class GpsSpec:
     def period_s(self) -> float:
         """Time between fixes (s)."""
         return 1.0 / self.rate_hz
+
+    def driving_sigmas_ned_m(self) -> np.ndarray:
+        """Driving-noise sigmas (m) the position errors take at each fix, north, east, down.
+
+        The spec's sigmas are a 1 Hz fix's; a receiver ``f`` times faster samples the same
+        Gauss-Markov process ``f`` times as often, so each fix takes the share
+        ``(1 - exp(-2 k T)) / (1 - exp(-2 k))`` of the variance (``T / 1 s`` for a random walk)
+        and the stationary sigma is the 1 Hz one. Taken per fix at 5 Hz, the same numbers made
+        a GPS whose height wandered 2.2 times as far (stationary 21 m against 9.4 m).
+        """
+        base = np.array([self.north_east_sigma_m, self.north_east_sigma_m, self.height_sigma_m])
+        k = self.k_gps_per_s
+        share = (
+            math.expm1(-2.0 * k * self.period_s) / math.expm1(-2.0 * k)
+            if k > 0.0
+            else (self.period_s / 1.0)
+        )
+        return base * math.sqrt(share)
 
     @property
     def course_sigma_rad(self) -> float:

@@ -195,7 +195,7 @@ def slow_state_noise(
 
     # GPS receiver: its own Gauss-Markov model
     errors = GPS_ERROR
-    driving = np.array([gps.north_east_sigma_m, gps.north_east_sigma_m, gps.height_sigma_m])
+    driving = gps.driving_sigmas_ned_m()
     if gps.k_gps_per_s > 0.0:
         per_fix = -math.expm1(-2.0 * gps.k_gps_per_s * gps.period_s)
         stationary[errors] = driving / math.sqrt(per_fix)
