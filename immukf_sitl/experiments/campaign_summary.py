@@ -163,9 +163,8 @@ def survived(row: Row, fault_free_att_mse_deg2: float) -> bool:
 
     Declared, not critical, the attitude MSE after the declaration at most
     :data:`SURVIVAL_ATTITUDE_RATIO` times the twin's (:func:`_fault_free_attitude`), and the
-    position error
-    after it under :data:`SURVIVAL_POSITION_M`. A run never declared has nothing to survive
-    with: it does not count as survived.
+    position error after it under :data:`SURVIVAL_POSITION_M`. A run never declared has
+    nothing to survive with: it does not count as survived.
     """
     att = _float(row.get("est_att_mse_after_decl_deg2", ""))
     pos = _float(row.get("est_pos_max_after_decl_m", ""))

@@ -216,7 +216,7 @@ def _await_estimator(listener: GroundStationListener, serve: Child, end_t_s: flo
     heard_t_s, advanced, last_report = listener.t_s, time.monotonic(), 0.0
     while listener.t_s < end_heard_t_s:
         if serve.proc.poll() is not None:
-            raise UserError(f"serve stopped during the flight: {serve.last_error()}")
+            raise UserError(f"serve stopped before the flight's end: {serve.last_error()}")
         listener.poll()
         now = time.monotonic()
         if listener.t_s > heard_t_s:
