@@ -8,6 +8,7 @@ experiments fly the same thing.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import tempfile
@@ -105,8 +106,8 @@ def flight_from_scenario(
         The book's aircraft (default: the packaged file). The scenario's ``airframe:`` block
         scales it; the factors used are the flight's ``airframe_factors``.
     out_dir : Path, optional
-        Where a perturbed airframe's JSBSim aircraft is written (default: a new temporary
-        directory).
+        Where a perturbed airframe's JSBSim aircraft is written (default: a temporary
+        directory, removed once JSBSim has loaded it).
     profile : StreamProfile, optional
         The stream the flight is sent as (default: the scenario's ``profile``): it sets the
         truth step, the per-step IMU noise and the GPS rate (:func:`profile_sensors`).
@@ -122,23 +123,26 @@ def flight_from_scenario(
     book = params if params is not None else load_aircraft_params()
     factors = airframe_factors(book, scenario.airframe, scenario.seed)
     flown = scaled_params(book, factors)
-    root_dir = None
-    if factors:
-        base = Path(out_dir) if out_dir is not None else Path(tempfile.mkdtemp(prefix="airframe-"))
-        root_dir = write_aircraft(flown, base)
     profile = profile if profile is not None else scenario.profile
     sensors = profile_sensors(scenario.sensors, profile)
-    flight = Flight(
-        scenario.flight_plan,
-        scenario.seed,
-        initial=initial_conditions(scenario.start),
-        params=flown,
-        imu_spec=sensors.imu,
-        gps_spec=sensors.gps,
-        dt_s=profile.truth_dt_s,
-        manoeuvres=scenario.manoeuvres,
-        wind=scenario.wind,
-        root_dir=root_dir,
-    )
+    with contextlib.ExitStack() as scratch:
+        root_dir = None
+        if factors:
+            if out_dir is None:
+                # JSBSim reads the aircraft once, when the flight is built: the files go with it
+                out_dir = scratch.enter_context(tempfile.TemporaryDirectory(prefix="airframe-"))
+            root_dir = write_aircraft(flown, Path(out_dir))
+        flight = Flight(
+            scenario.flight_plan,
+            scenario.seed,
+            initial=initial_conditions(scenario.start),
+            params=flown,
+            imu_spec=sensors.imu,
+            gps_spec=sensors.gps,
+            dt_s=profile.truth_dt_s,
+            manoeuvres=scenario.manoeuvres,
+            wind=scenario.wind,
+            root_dir=root_dir,
+        )
     flight.airframe_factors = factors
     return flight

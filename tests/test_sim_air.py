@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -113,6 +114,21 @@ def test_jsbsim_flies_the_scaled_airframe(tmp_path):
     assert flight.driver.mass_kg == pytest.approx(11.0 * 1.2, rel=1e-6)
     assert (tmp_path / "jsbsim" / "aircraft" / "aerosonde" / "aerosonde.xml").is_file()
     assert flight.airframe_factors == {"mass_kg": pytest.approx(1.2)}
+
+
+def test_a_scaled_airframe_in_scratch_space_leaves_nothing_behind(tmp_path, monkeypatch):
+    """Without ``out_dir`` the aircraft goes to a temporary directory that is gone once JSBSim
+    has loaded it (a campaign once left one per run in /tmp), and the flight still flies it."""
+    scratch = tmp_path / "tmp"
+    scratch.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(scratch))
+    scenario = load_scenario(_scenario(tmp_path, airframe={"scale": {"mass_kg": 1.2}}))
+    flight = flight_from_scenario(scenario)
+    assert list(scratch.iterdir()) == []
+    assert flight.driver.mass_kg == pytest.approx(11.0 * 1.2, rel=1e-6)
+    flight.start()
+    flight.step()
+    assert flight.driver.mass_kg == pytest.approx(11.0 * 1.2, rel=1e-6)
 
 
 # -- the air -------------------------------------------------------------------------------
