@@ -1,7 +1,8 @@
 """End to end over real UDP: ``immukf-sitl run`` (sim -> proxy -> serve, lock-step on loopback)
 with a real, headless MAVProxy as the ground station.
 
-The q gyro is zeroed at 30 s (``scenarios/q_gyro_zeroed.yaml``, cut to 36 s). The run's JSON must
+The q gyro is zeroed at 14 s, in the climbing right turn (``scenarios/q_gyro_zeroed.yaml`` with its
+fault moved from 30 s, cut to 20 s: the same checks in a shorter flight). The run's JSON must
 report q identified within 1.0 s of the fault becoming observable and no false alarm; MAVProxy's
 own tlog must hold, from the estimator (system 1, component 191), the seven mode probabilities,
 ATTITUDE and the detection STATUSTEXT. MAVProxy is started before the run, left to record its
@@ -12,8 +13,8 @@ The ``busy`` case flies the same beside one CPU burner per core (less the other 
 which keep a core busy each), paced to the wall clock, as a ground station on a loaded machine
 would hear it in flight: a STATUSTEXT lost there is a detection the operator never sees.
 (Lock-step runs about twice faster than the air: beside the burners it once outran MAVProxy,
-which had recorded 31 of the 36 s when it was stopped.) MAVProxy needs about a quarter of a core
-for this stream (9.4 s of CPU for the 36 s flight, measured idle); starved below that, it falls
+which had recorded 31 of a 36 s flight when it was stopped.) MAVProxy needs about a quarter of a
+core for this stream (9.4 s of CPU for a 36 s flight, measured idle); starved below that, it falls
 behind and its socket's receive buffer (about a second of this stream) overflows, so the kernel
 drops the newest datagrams and the flight's last seconds never reach it. The busy case accepts a
 lost tail only where the kernel counted those drops on MAVProxy's socket, and still requires the
@@ -33,6 +34,7 @@ from collections import Counter
 from pathlib import Path
 
 import pytest
+import yaml
 from udp_tools import REPO, free_udp_port
 
 from immukf_sitl.mavlink.wire import (
@@ -45,11 +47,12 @@ from immukf_sitl.mavlink.wire import (
 pytestmark = pytest.mark.slow
 
 SCENARIO = REPO / "scenarios" / "q_gyro_zeroed.yaml"
-DURATION_S = 36.0
-FAULT_T_S = 30.0
+DURATION_S = 20.0
+FAULT_T_S = 14.0
 MP_NAMES = {"MP_NONE", "MP_AX", "MP_AY", "MP_AZ", "MP_P", "MP_Q", "MP_R"}
-#: about 8 s here (36 s paced beside the CPU burners); bounded so that a hung chain fails instead of
-#: blocking CI, with room for a cold numba cache (the first run compiles every kernel)
+#: 26 s here idle, 55 s paced beside two CPU burners (the estimator catching up); bounded so that a
+#: hung chain fails instead of blocking CI, with room for a cold numba cache (the first run
+#: compiles every kernel)
 RUN_TIMEOUT_S = 150.0
 MAVPROXY_READY_S = 20.0
 STOP_TIMEOUT_S = 10.0
@@ -61,6 +64,17 @@ DRAIN_TIMEOUT_S = 60.0
 #: seconds between looks at MAVProxy's tlog (each parses the whole file, ~0.5 s of CPU idle, taken
 #: from a MAVProxy that may be starved already)
 DRAIN_POLL_S = 1.0
+
+
+def _early_fault_scenario(tmp_path: Path) -> Path:
+    """The shipped scenario with its q fault at FAULT_T_S, written under ``tmp_path``."""
+    spec = yaml.safe_load(SCENARIO.read_text())
+    (fault,) = spec["faults"]
+    assert fault["channels"] == ["q"] and fault["kind"] == "zero", fault
+    fault["t_s"] = FAULT_T_S
+    path = tmp_path / "q_gyro_zeroed_early.yaml"
+    path.write_text(yaml.safe_dump(spec, sort_keys=False))
+    return path
 
 
 def _mavproxy_command() -> list[str] | None:
@@ -243,7 +257,7 @@ def test_run_with_mavproxy_ground_station(tmp_path: Path, cpu_burners: int) -> N
                 "-m",
                 "immukf_sitl.cli",
                 "run",
-                str(SCENARIO),
+                str(_early_fault_scenario(tmp_path)),
                 "--duration",
                 f"{DURATION_S:g}",
                 "--gcs",
