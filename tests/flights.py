@@ -1,10 +1,13 @@
-"""Helper of the flown tests: a shipped scenario with other faults, flown in process (JSBSim and
-the estimator, lock-step), and its summary as ``--json`` gives it."""
+"""Helpers of the flown tests: a shipped scenario with other faults, flown in process (JSBSim and
+the estimator, lock-step), and its summary as ``--json`` gives it; or written with its fault
+moved, for the tests that fly it through the CLI."""
 
 from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
+
+import yaml
 
 from immukf_sitl.experiments.inprocess import run_inprocess
 from immukf_sitl.scenario import ExpectSpec, FaultSpec, load_scenario
@@ -27,3 +30,17 @@ def fly(
     scenario = dataclasses.replace(base, faults=faults, expect=expect)
     config = PipelineConfig(filter_model=model, sensors=base.sensors.spec_sheet())
     return run_inprocess(scenario, config, duration_s=duration_s).summary().to_json()
+
+
+def with_fault_at(name: str, t_s: float, out_dir: Path) -> Path:
+    """``scenarios/<name>``, whose one fault starts at ``t_s`` instead, written to ``out_dir``.
+
+    The shipped scenarios fault at 30 s; from 14 s they fly the climbing right turn, where every
+    channel reads away from zero, so a test checks the same detection in 16 s less of flight.
+    """
+    spec = yaml.safe_load((SCENARIOS / name).read_text())
+    (fault,) = spec["faults"]
+    fault["t_s"] = float(t_s)
+    path = Path(out_dir) / f"{Path(name).stem}_at_{t_s:g}s.yaml"
+    path.write_text(yaml.safe_dump(spec, sort_keys=False))
+    return path

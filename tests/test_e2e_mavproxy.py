@@ -34,7 +34,7 @@ from collections import Counter
 from pathlib import Path
 
 import pytest
-import yaml
+from flights import with_fault_at
 from udp_tools import REPO, free_udp_port
 
 from immukf_sitl.mavlink.wire import (
@@ -46,7 +46,7 @@ from immukf_sitl.mavlink.wire import (
 # flies JSBSim or the estimator chain
 pytestmark = pytest.mark.slow
 
-SCENARIO = REPO / "scenarios" / "q_gyro_zeroed.yaml"
+SCENARIO = "q_gyro_zeroed.yaml"
 DURATION_S = 20.0
 FAULT_T_S = 14.0
 MP_NAMES = {"MP_NONE", "MP_AX", "MP_AY", "MP_AZ", "MP_P", "MP_Q", "MP_R"}
@@ -64,17 +64,6 @@ DRAIN_TIMEOUT_S = 60.0
 #: seconds between looks at MAVProxy's tlog (each parses the whole file, ~0.5 s of CPU idle, taken
 #: from a MAVProxy that may be starved already)
 DRAIN_POLL_S = 1.0
-
-
-def _early_fault_scenario(tmp_path: Path) -> Path:
-    """The shipped scenario with its q fault at FAULT_T_S, written under ``tmp_path``."""
-    spec = yaml.safe_load(SCENARIO.read_text())
-    (fault,) = spec["faults"]
-    assert fault["channels"] == ["q"] and fault["kind"] == "zero", fault
-    fault["t_s"] = FAULT_T_S
-    path = tmp_path / "q_gyro_zeroed_early.yaml"
-    path.write_text(yaml.safe_dump(spec, sort_keys=False))
-    return path
 
 
 def _mavproxy_command() -> list[str] | None:
@@ -257,7 +246,7 @@ def test_run_with_mavproxy_ground_station(tmp_path: Path, cpu_burners: int) -> N
                 "-m",
                 "immukf_sitl.cli",
                 "run",
-                str(_early_fault_scenario(tmp_path)),
+                str(with_fault_at(SCENARIO, FAULT_T_S, tmp_path)),
                 "--duration",
                 f"{DURATION_S:g}",
                 "--gcs",
