@@ -426,12 +426,13 @@ def test_matrix_summary_on_a_hand_made_run_set() -> None:
 
     rows = [
         imm("none", fault_free_s="117", false_declarations_fault_free="1", declarations="q@50.00",
-            est_att_max_deg="2", est_att_mse_deg2="1.5"),
+            est_att_max_deg="2", est_att_mse_deg2="1.5", est_att_nees_after_decl="1.2"),
         _row(variant="ukf2", fault="none", est_att_max_deg="1", est_att_mse_deg2="1.0"),
         _row(variant="ukf3", fault="none", est_att_max_deg="3", est_att_mse_deg2="4.0"),
         imm("q", observable_t_s="41", detection_delay_s="0.4", identified="q",
             identified_ok="true", identified_within_1s="true", fault_free_s="37",
-            false_declarations_fault_free="1", declarations="x@30.00 q@41.40"),
+            false_declarations_fault_free="1", declarations="x@30.00 q@41.40",
+            est_att_nees_after_decl="4.5"),
         imm("p", observable_t_s="42", detection_delay_s="1.6", identified="p",
             identified_ok="true", identified_within_1s="false", fault_free_s="37",
             false_declarations_fault_free="0", declarations="p@43.60"),
@@ -461,7 +462,10 @@ def test_matrix_summary_on_a_hand_made_run_set() -> None:
         "with_fault_free_twin": 1,
         "survived": 0,  # a row without the error after its declaration: nothing to survive with
         "attitude_ratio_median": None,
+        "attitude_nees_median": 4.5,
     }
+    assert ident["by_channel"]["p"]["attitude_nees_median"] is None
+    assert ident["fault_free_attitude_nees_median"] == pytest.approx(1.2)
     false = summary["overall"]["false_declarations"]
     assert false["declarations"] == 2 and false["hours"] == pytest.approx(292.0 / 3600.0, abs=1e-6)
     assert false["by_mode"] == {"q": 1, "x": 1} and false["runs_with_declarations"] == 2
@@ -480,6 +484,7 @@ def test_matrix_summary_on_a_hand_made_run_set() -> None:
     assert "### Filter model `real-air`" in text and "| calm | 3 | 1 | 33 % |" in text
     assert "| calm | 3 | 1 | 33 % | 1 | 1 | 0 | 1 | 1 |" in text
     assert "| 1.50 |" in text and "**not met**" in text
+    assert "| calm | 1.2 | – | – | – | – | 4.5 | – |" in text  # attitude consistency
 
 
 def test_matrix_attitude_pairs_the_variants_of_one_flight_only() -> None:
@@ -837,9 +842,11 @@ def test_a_pair_runs_row_names_its_second_fault_and_single_rows_leave_it_empty(
 
 @pytest.mark.parametrize(
     "missing",
-    [campaign_run.AFTER_DECLARATION_COLUMNS,
-     campaign_run.PAIR_COLUMNS + campaign_run.AFTER_DECLARATION_COLUMNS],
-    ids=["before-survival", "before-pairs"],
+    [campaign_run.CONSISTENCY_COLUMNS,
+     campaign_run.CONSISTENCY_COLUMNS + campaign_run.AFTER_DECLARATION_COLUMNS,
+     campaign_run.CONSISTENCY_COLUMNS + campaign_run.PAIR_COLUMNS
+     + campaign_run.AFTER_DECLARATION_COLUMNS],
+    ids=["before-consistency", "before-survival", "before-pairs"],
 )  # fmt: skip
 def test_a_runs_csv_written_before_later_columns_still_reads(
     tmp_path: Path, missing: tuple[str, ...]
@@ -860,13 +867,15 @@ def test_a_runs_csv_written_before_later_columns_still_reads(
 
 def test_errors_after_a_declaration_cover_the_flight_from_it_on() -> None:
     """A 1 deg attitude error before the declaration at 5 s and a 3-4-0 deg one (5 deg) after:
-    the MSE after it is exactly 25 deg^2; the position error 2 m before, 7 m after."""
+    the MSE after it is exactly 25 deg^2; the position error 2 m before, 7 m after. With sigmas
+    of 1, 2 and 1 deg (3 deg in roll before) the normalised errors squared after it are 9, 4
+    and 0, a mean of 13/3 per axis."""
     from types import SimpleNamespace
 
     from immukf_sitl.experiments.metrics import errors_after_declaration
 
     times = np.round(np.arange(0.0, 10.0, 0.01), 2)
-    records, estimates = [], []
+    records, estimates, outputs = [], [], []
     for t in times:
         truth = SimpleNamespace(position_ned_m=np.zeros(3), euler_rad=np.zeros(3))
         records.append(SimpleNamespace(time_s=float(t), autopilot=object(), truth=truth))
@@ -874,13 +883,23 @@ def test_errors_after_a_declaration_cover_the_flight_from_it_on() -> None:
         euler = np.radians([3.0, 4.0, 0.0]) if after else np.radians([1.0, 0.0, 0.0])
         position = np.array([0.0, 7.0 if after else 2.0, 0.0])
         estimates.append(SimpleNamespace(time_s=float(t), position_ned_m=position, euler_rad=euler))
-    run = SimpleNamespace(records=records, estimates=estimates)
+        sigma = np.radians([1.0, 2.0, 1.0] if after else [3.0, 2.0, 1.0])
+        outputs.append(SimpleNamespace(t_s=float(t), nav=SimpleNamespace(euler_sigma_rad=sigma)))
+    history = SimpleNamespace(outputs=outputs)
+    run = SimpleNamespace(records=records, estimates=estimates, history=history)
     out = errors_after_declaration(run, settle_s=1.0, declared_t_s=5.0)
     assert out["est_att_mse_after_decl_deg2"] == pytest.approx(25.0)
     assert out["est_pos_max_after_decl_m"] == pytest.approx(7.0)
+    assert out["est_att_nees_after_decl"] == pytest.approx(13.0 / 3.0)
+    # a step the estimator gave no sigma for is left out, not counted as consistent
+    history.outputs = outputs[:700]
+    assert errors_after_declaration(run, 1.0, 5.0)["est_att_nees_after_decl"] == pytest.approx(
+        13.0 / 3.0
+    )
     assert errors_after_declaration(run, 1.0, None) == {
         "est_att_mse_after_decl_deg2": None,
         "est_pos_max_after_decl_m": None,
+        "est_att_nees_after_decl": None,
     }
 
 

@@ -365,6 +365,33 @@ def _survival_lines(groups: list[tuple[str, dict]]) -> list[str]:
             )
             cells.append(f"{c['survived']}/{c['with_fault_free_twin']}{shown}")
         lines.append(f"| {air} | {' | '.join(cells)} |")
+    return lines + _consistency_lines(groups)
+
+
+def _consistency_lines(groups: list[tuple[str, dict]]) -> list[str]:
+    """Per air and channel: the median attitude NEES per axis after the declaration.
+
+    Beside them the fault-free flights' from their drawn onset; no table when no run has one.
+    """
+    rows = []
+    for air, g in groups:
+        ident = g["identification"]
+        medians = [ident.get("fault_free_attitude_nees_median")] + [
+            c.get("attitude_nees_median") for c in ident["by_channel"].values()
+        ]
+        rows.append((air, medians))
+    if all(m is None for _, medians in rows for m in medians):
+        return []
+    lines = [
+        "\nAttitude consistency after the declaration (median over the runs of the attitude "
+        "error squared over the filter's own variance, per axis: 1 when its sigmas are right, "
+        "9 when the errors run three times them):\n",
+        "| air | fault-free | x | y | z | p | q | r |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for air, medians in rows:
+        cells = " | ".join("–" if m is None else f"{m:.3g}" for m in medians)
+        lines.append(f"| {air} | {cells} |")
     return lines
 
 

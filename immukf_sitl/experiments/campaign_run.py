@@ -73,6 +73,7 @@ COLUMNS: tuple[str, ...] = (
     "est_att_mse_deg2",
     "est_att_mse_after_decl_deg2",
     "est_pos_max_after_decl_m",
+    "est_att_nees_after_decl",
     "ctrl_pos_max_m",
     "ctrl_pos_mse_m2",
     "ctrl_att_max_deg",
@@ -98,9 +99,15 @@ COLUMNS: tuple[str, ...] = (
 PAIR_COLUMNS = (*_SECOND_FAULT_COLUMNS, "declared_at_end")
 #: the columns the survival after a declaration added (read empty from an older file too)
 AFTER_DECLARATION_COLUMNS = ("est_att_mse_after_decl_deg2", "est_pos_max_after_decl_m")
-_OLDER_HEADERS = (
-    tuple(c for c in COLUMNS if c not in AFTER_DECLARATION_COLUMNS),
-    tuple(c for c in COLUMNS if c not in PAIR_COLUMNS + AFTER_DECLARATION_COLUMNS),
+#: the column the attitude's consistency after a declaration added
+CONSISTENCY_COLUMNS = ("est_att_nees_after_decl",)
+_OLDER_HEADERS = tuple(
+    tuple(c for c in COLUMNS if c not in added)
+    for added in (
+        CONSISTENCY_COLUMNS,
+        CONSISTENCY_COLUMNS + AFTER_DECLARATION_COLUMNS,
+        CONSISTENCY_COLUMNS + AFTER_DECLARATION_COLUMNS + PAIR_COLUMNS,
+    )
 )
 RUNS_CSV = "runs.csv"
 CAMPAIGN_JSON = "campaign.json"
@@ -199,8 +206,8 @@ def _row_of(future: Future, spec: RunSpec) -> dict[str, str]:
 def read_rows(path: Path) -> list[dict[str, str]]:
     """The rows of a ``runs.csv`` (empty if there is none).
 
-    A file written before :data:`PAIR_COLUMNS` or :data:`AFTER_DECLARATION_COLUMNS` existed
-    reads with those cells empty.
+    A file written before :data:`PAIR_COLUMNS`, :data:`AFTER_DECLARATION_COLUMNS` or
+    :data:`CONSISTENCY_COLUMNS` existed reads with those cells empty.
     """
     if not path.exists():
         return []

@@ -115,6 +115,7 @@ def _identification(imm: Sequence[Row]) -> dict[str, object]:
             "survived": sum(survived(r, fault_free[_flight_key(r)]) for r in twinned),
             # over the runs declared (a run never declared has no error after a declaration)
             "attitude_ratio_median": _number(_median([x for x in ratios if math.isfinite(x)])),
+            "attitude_nees_median": _number(_median(_attitude_nees(mine))),
         }
     share = len(within) / len(observable) if observable else math.nan
     return {
@@ -131,7 +132,18 @@ def _identification(imm: Sequence[Row]) -> dict[str, object]:
         "detection_delay_s_median": _number(_median(delays)),
         "detection_delay_s_max": _number(max(delays) if delays else math.nan),
         "by_channel": channels,
+        "fault_free_attitude_nees_median": _number(
+            _median(_attitude_nees([r for r in imm if r["fault"] == "none"]))
+        ),
     }
+
+
+def _attitude_nees(rows: Sequence[Row]) -> list[float]:
+    """The rows' attitude NEES per axis after the declaration, NaN where they have none.
+
+    A fault-free flight's is from its drawn onset on.
+    """
+    return [_float(r.get("est_att_nees_after_decl") or "") for r in rows]
 
 
 #: kinds whose named size is compared with the injected one (relative error)

@@ -24,7 +24,10 @@ Definitions (docs/results/paper/report.md repeats them for readers of the tables
 - **After the declaration**: the attitude MSE and the largest position error of the estimate
   from the declaration that names the fault's channel to the end of the flight, to compare
   with the same air's and airframe's fault-free flight (survival); a fault-free IMM run gives
-  them from its own drawn onset on, the same phase of flight.
+  them from its own drawn onset on, the same phase of flight. Beside them the attitude's
+  consistency over the same window: the mean of the roll, pitch and yaw errors squared, each
+  over the variance the filter gave it (its normalised estimation error squared per axis,
+  1 for a filter whose sigmas are right; 9 means the errors run three times the sigmas).
 - **Pair runs** (two channels, the second failing a gap after the first): the run's
   identification columns describe the first fault (the first declaration at or after it must
   name the first channel), the ``second_*`` columns the second; each channel's detection is the
@@ -94,12 +97,16 @@ def attitude_control_error_deg(record: FlightRecord) -> np.ndarray:
 
 def estimate_errors(record: FlightRecord, nav: NavigationState) -> tuple[float, float]:
     """``(position error m, attitude error deg)`` of an estimate against the record's truth."""
-    truth = record.truth
-    position = float(np.linalg.norm(nav.position_ned_m - truth.position_ned_m))
-    diff = [
-        wrap_angle_rad(float(a - b)) for a, b in zip(nav.euler_rad, truth.euler_rad, strict=True)
+    position = float(np.linalg.norm(nav.position_ned_m - record.truth.position_ned_m))
+    return position, math.degrees(math.sqrt(sum(d * d for d in attitude_errors_rad(record, nav))))
+
+
+def attitude_errors_rad(record: FlightRecord, nav: NavigationState) -> list[float]:
+    """Roll, pitch and yaw of the estimate less the record's truth, each wrapped (rad)."""
+    return [
+        wrap_angle_rad(float(a - b))
+        for a, b in zip(nav.euler_rad, record.truth.euler_rad, strict=True)
     ]
-    return position, math.degrees(math.sqrt(sum(d * d for d in diff)))
 
 
 class FailureMonitor:
@@ -203,14 +210,39 @@ def errors_after_declaration(
     A critical run's window ends where it stopped.
     """
     if declared_t_s is None:
-        return dict.fromkeys(("est_att_mse_after_decl_deg2", "est_pos_max_after_decl_m"))
+        return dict.fromkeys(
+            ("est_att_mse_after_decl_deg2", "est_pos_max_after_decl_m", "est_att_nees_after_decl")
+        )
     start_s = declared_t_s - 5e-4  # declaration times are rounded to the millisecond
     window = [(rec, nav) for rec, nav in _window(run, settle_s) if rec.time_s >= start_s]
     est = np.array([estimate_errors(rec, nav) for rec, nav in window]).reshape(-1, 2)
     return {
         "est_att_mse_after_decl_deg2": ErrorStats.of(est[:, 1]).mse,
         "est_pos_max_after_decl_m": ErrorStats.of(est[:, 0]).max,
+        "est_att_nees_after_decl": attitude_nees(run, window),
     }
+
+
+def attitude_nees(
+    run: InProcessRun, window: Sequence[tuple[FlightRecord, NavigationState]]
+) -> float | None:
+    """Mean normalised attitude error squared per axis over ``window`` (None: no sigmas).
+
+    Each step's wrapped roll, pitch and yaw errors against the truth are divided by the
+    sigmas the estimator gave them (``EstimateOutput.nav.euler_sigma_rad`` of the same step),
+    squared and averaged over the three axes and the steps: a chi-square with 3 degrees of
+    freedom per step, over 3, so 1 when the sigmas are right (Bar-Shalom, Li & Kirubarajan,
+    *Estimation with Applications to Tracking and Navigation*, 2001, sec. 5.4).
+    """
+    sigma_rad = {round(out.t_s, 6): out.nav.euler_sigma_rad for out in run.history.outputs}
+    values = []
+    for rec, nav in window:
+        sigma = sigma_rad.get(round(nav.time_s, 6))
+        if sigma is None or not np.all(np.asarray(sigma) > 0.0):
+            continue
+        diff = np.array(attitude_errors_rad(rec, nav))
+        values.append(float(np.mean((diff / np.asarray(sigma)) ** 2)))
+    return float(np.mean(values)) if values else None
 
 
 def fault_free_window_s(
