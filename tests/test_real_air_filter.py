@@ -149,7 +149,9 @@ def test_no_bias_on_the_spec_sheet_means_inert_bias_states(params) -> None:
     biased = SensorSpec(ImuSpec(gyro_bias_sigma_radps=0.0017, bias_instability=True))
     noise = slow_state_noise(params, biased, RealAirModel())
     assert noise.initial_sigma[GYRO_BIAS][0] == pytest.approx(math.hypot(0.0017, 5e-5))
-    assert noise.decay_per_s[GYRO_BIAS][0] == pytest.approx(1.0 / 300.0)
+    # a random walk: the turn-on bias does not decay; the wander's driving PSD 2 sigma^2 / tau
+    assert noise.decay_per_s[GYRO_BIAS][0] == 0.0
+    assert noise.step_variance(0.01)[GYRO_BIAS][0] == pytest.approx(2.0 * 5e-5**2 / 300.0 * 0.01)
 
 
 def test_a_vertical_gusts_model_error_is_the_lift_slope_and_pitch_stiffness_error(params) -> None:

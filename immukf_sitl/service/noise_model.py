@@ -18,8 +18,11 @@ number:
   (eq. 32), but that doubled the attitude error of the first 25 s of a windy flight, while the
   turbulence adapter still flies the design air. The initial sigma is
   ``design.initial_wind_sigma_mps`` horizontally, ``sigma_w`` vertically.
-- **gyro bias**: the IMU spec sheet: turn-on sigma (initial) and the bias instability as a
-  Gauss-Markov process of the sheet's correlation time.
+- **gyro bias**: the IMU spec sheet: turn-on sigma (initial), and a random walk with the bias
+  instability's driving PSD, ``2 sigma^2 / tau`` of the sheet's sigma and correlation time. The
+  state holds the turn-on bias, which is constant, with the wander on it: as a Gauss-Markov
+  state of that time constant it pulled the turn-on bias toward zero, and the attitude sat a
+  fraction of a degree off with a sigma a third of that.
 - **force correction**: the model error of an airframe with ``design.model_uncertainty``
   (:func:`~immukf_sitl.models.augmented.model_error_sigmas`), combined with the
   accelerometer's turn-on bias and instability, is the initial sigma. Most of it is a constant
@@ -147,13 +150,14 @@ def slow_state_noise(
     stationary[down] = gust[2]
     share[WIND] = 1.0
 
-    # gyro bias: the spec sheet
+    # gyro bias: the spec sheet. The state holds the turn-on bias, a constant, and the wander
+    # on it, so it walks with the wander's driving PSD (2 sigma^2 / tau) and never decays: a
+    # Gauss-Markov state would pull the turn-on bias toward zero (as the force correction
+    # carries the accelerometer's)
     instability = imu.bias_instability
     gyro_wander = imu.gyro_bias_instability_radps if instability else 0.0
     initial[GYRO_BIAS] = math.hypot(imu.gyro_bias_sigma_radps, gyro_wander)
-    if gyro_wander > 0.0:
-        decay[GYRO_BIAS] = 1.0 / imu.bias_time_constant_s
-        stationary[GYRO_BIAS] = gyro_wander
+    stationary[GYRO_BIAS] = math.sqrt(2.0 * gyro_wander**2 / imu.bias_time_constant_s)
 
     # model error (with the accelerometer's bias folded into the force correction): a random
     # walk from its size, driven so that it covers its variation with the flight condition in
