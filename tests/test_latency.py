@@ -11,6 +11,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from immukf_sitl.cli import main as cli_main
+from immukf_sitl.mavlink import wire
 from immukf_sitl.mavlink.codec import euler_to_quaternion
 from immukf_sitl.mavlink.wire import DatagramReader, connect
 from immukf_sitl.service.timing import DurationHistogram, SimTimeWindows, lag_statistics
@@ -28,9 +29,28 @@ def test_the_arrival_stamp_includes_the_time_a_datagram_waited_in_the_socket() -
         read_ns = time.time_ns()
         data, arrival_ns, peer = reader.read()
         assert data == b"\xfdabc" and peer[1] == sender.getsockname()[1]
+    if not reader.kernel_stamps:  # the read-time fallback, which the reader must then report
+        assert arrival_ns >= read_ns
+        conn.close()
+        pytest.skip("this kernel accepts SO_TIMESTAMPNS and attaches no stamp (a sandbox)")
     assert read_ns - arrival_ns >= 50_000_000  # the wait is counted: not a read-time stamp
     assert arrival_ns <= read_ns and arrival_ns >= sent_ns - 1_000_000_000
     assert reader.read() is None
+    conn.close()
+
+
+def test_a_datagram_without_a_kernel_stamp_is_stamped_at_the_read_and_says_so() -> None:
+    conn = connect("udpin:127.0.0.1:0", 1, 191)
+    reader = DatagramReader(conn)
+    if reader.kernel_stamps:  # the option is withdrawn, as a sandbox that ignores it would
+        conn.port.setsockopt(socket.SOL_SOCKET, wire._SO_TIMESTAMPNS, 0)
+    reader.kernel_stamps = True  # as if the option had been accepted
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sender:
+        sender.sendto(b"\xfdabc", conn.port.getsockname())
+        time.sleep(0.05)
+        read_ns = time.time_ns()
+        _, arrival_ns, _ = reader.read()
+    assert arrival_ns >= read_ns and not reader.kernel_stamps
     conn.close()
 
 

@@ -114,7 +114,9 @@ class DatagramReader:
     each datagram off the connection's socket with ``recvmsg`` and the kernel's receive stamp
     (``SO_TIMESTAMPNS``, Linux; CLOCK_REALTIME, so it includes the time the datagram waited in
     the socket's queue), and the caller hands the bytes to a pymavlink parser. Elsewhere the
-    stamp is the time of the read (``kernel_stamps`` is then False).
+    stamp is the time of the read (``kernel_stamps`` is then False). Some kernels (sandboxes such
+    as gVisor) accept the option and attach no stamp: the first datagram without one turns
+    ``kernel_stamps`` False, so what the lag is measured from is never claimed wrongly.
 
     Parameters
     ----------
@@ -159,6 +161,7 @@ class DatagramReader:
             if level == socket.SOL_SOCKET and kind == _SO_TIMESTAMPNS:
                 seconds, nanoseconds = _TIMESPEC.unpack(payload[: _TIMESPEC.size])
                 return data, seconds * 1_000_000_000 + nanoseconds, sender
+        self.kernel_stamps = False  # the option was accepted but no stamp came
         return data, time.time_ns(), sender
 
     def accept_peer(self, sender: tuple) -> None:
