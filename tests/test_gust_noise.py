@@ -113,3 +113,15 @@ def test_the_aerodynamics_see_the_rates_relative_to_the_turning_air(model) -> No
     # in still-turning air (no gust) the same state gives other forces
     still = aug.imu(0.0, np.concatenate([x0, np.zeros(N_SLOW)]), u0)
     assert np.max(np.abs(still[:3] - imu[:3])) > 1e-3
+
+
+def test_the_turbulence_ceiling_is_the_roughest_airs_w20_over_the_designs() -> None:
+    """MIL-F-8785C's low-altitude W20: severe 45 kt over moderate 30 kt."""
+    assert RealAirModel(roughest_turbulence="severe").turbulence_ceiling == pytest.approx(1.5)
+    assert RealAirModel().turbulence_ceiling == 1.0  # the design air, by default
+    light = RealAirModel(design_turbulence="light", roughest_turbulence="severe")
+    assert light.turbulence_ceiling == pytest.approx(3.0)
+    with pytest.raises(ValueError, match="roughest_turbulence"):
+        RealAirModel(roughest_turbulence="light")
+    with pytest.raises(ValueError, match="roughest_turbulence"):
+        RealAirModel(roughest_turbulence="hurricane")

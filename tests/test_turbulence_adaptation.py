@@ -66,16 +66,18 @@ def _fly(
     return est
 
 
-@pytest.mark.parametrize("k_true", [0.3, 0.6])
+@pytest.mark.parametrize("k_true", [0.3, 0.6, 1.3])
 def test_scale_settles_where_the_filter_is_consistent(k_true: float) -> None:
-    est = _fly(_adapter(), np.full(6, k_true**2 * Q_DESIGN), 150.0, seed=11)
+    """Air calmer than the design's, and rougher (up to the ceiling), is learnt."""
+    est = _fly(_adapter(ceiling=1.5), np.full(6, k_true**2 * Q_DESIGN), 150.0, seed=11)
     assert est.scale == pytest.approx(k_true, rel=0.2)
 
 
-def test_still_air_goes_to_the_floor_and_rough_air_to_the_design() -> None:
-    adapter = _adapter(floor=0.2)
+def test_still_air_goes_to_the_floor_and_rough_air_to_the_ceiling() -> None:
+    adapter = _adapter(floor=0.2, ceiling=1.5)
     assert _fly(adapter, np.zeros(6), 120.0, seed=12).scale == pytest.approx(0.2)
-    assert _fly(adapter, np.full(6, 4.0 * Q_DESIGN), 60.0, seed=13).scale == 1.0
+    assert _fly(adapter, np.full(6, 9.0 * Q_DESIGN), 60.0, seed=13).scale == 1.5
+    assert _fly(_adapter(), np.full(6, 4.0 * Q_DESIGN), 60.0, seed=13).scale == 1.0
 
 
 def test_a_dead_channel_moves_the_scale_by_one_rank_only() -> None:
@@ -156,6 +158,8 @@ def test_process_at_scales_only_the_turbulences_share() -> None:
 def test_bad_settings_are_refused() -> None:
     with pytest.raises(ValueError, match="floor"):
         _adapter(floor=0.0)
+    with pytest.raises(ValueError, match="ceiling"):
+        _adapter(ceiling=0.9)
     with pytest.raises(ValueError, match="period_s"):
         _adapter(averaging_s=0.1)
 

@@ -578,7 +578,9 @@ class RealAirModel(FilterModel):
     The design air (``design_turbulence`` moderate, ``design_height_m`` 150 m,
     ``design_airspeed_mps`` 25 m/s) is the roughest MIL-F-8785C air the filter is meant to hold in;
     with ``adaptive_turbulence`` the wind and gust states' driving noise is scaled in flight to the
-    air the innovations show, between ``turbulence_floor`` (0.1) and 1 times the design's, from
+    air the innovations show, between ``turbulence_floor`` (0.1) times the design's and
+    ``roughest_turbulence``'s (by W20; None, the default: the design's; severe's 1.5 was flown
+    on the tuning draw and not taken, docs/design/real-air-model.md), from
     ``turbulence_averaging_s`` (10 s) averages. With ``score_unexplained`` and the untrusted modes,
     each IMU channel's and each GPS channel's variance beyond ``S`` over the last minute (the
     base's innovations, a declared channel's forgotten at its declaration) is added to ``S``
@@ -628,11 +630,20 @@ class RealAirModel(FilterModel):
     consider_states: tuple[str, ...] = ("gps_error",)
     adaptive_turbulence: bool = True
     turbulence_floor: float = 0.1
+    roughest_turbulence: str | None = None
     turbulence_averaging_s: float = 10.0
     score_unexplained: bool = True
     fault_signature: str = "zero"
     offset_walk_sigmas: float = 0.001
     history_floor: float = 1e-5
+
+    @property
+    def turbulence_ceiling(self) -> float:
+        """The largest turbulence scale: the roughest air's W20 over the design air's."""
+        design = TURBULENCE_LEVELS[self.design_turbulence].w20_mps
+        if self.roughest_turbulence is None or not design:
+            return 1.0
+        return TURBULENCE_LEVELS[self.roughest_turbulence].w20_mps / design
 
     @property
     def settle_s(self) -> float:
@@ -645,10 +656,18 @@ class RealAirModel(FilterModel):
 
     def __post_init__(self) -> None:
         self._check_signature()
-        if self.design_turbulence not in TURBULENCE_LEVELS:
+        for name in ("design_turbulence", "roughest_turbulence"):
+            if name == "roughest_turbulence" and self.roughest_turbulence is None:
+                continue  # the design air
+            if getattr(self, name) not in TURBULENCE_LEVELS:
+                raise ValueError(
+                    f"{name}: expected one of {', '.join(TURBULENCE_LEVELS)}, "
+                    f"got {getattr(self, name)!r}"
+                )
+        if self.turbulence_ceiling < 1.0:
             raise ValueError(
-                f"design_turbulence: expected one of {', '.join(TURBULENCE_LEVELS)}, "
-                f"got {self.design_turbulence!r}"
+                f"roughest_turbulence: expected at least the design's "
+                f"({self.design_turbulence}), got {self.roughest_turbulence!r}"
             )
         self._check_positive(
             process_noise_factor=self.process_noise_factor,
@@ -732,6 +751,7 @@ class _RealAirDynamics(ModelDynamics):
             self.adapter = TurbulenceAdapter(
                 self.process, N_RIGID + turbulent, np.diagonal(sensors.imu.noise_cov()), dt,
                 model.turbulence_averaging_s, floor=model.turbulence_floor,
+                ceiling=model.turbulence_ceiling,
                 turbulence_share=self.noise.turbulence_share[turbulent],
             )  # fmt: skip
 

@@ -10,7 +10,7 @@ rough air. So the intensity is estimated, not assumed.
 
 MIL-F-8785C scales every gust intensity (``sigma_u``, ``sigma_v``, ``sigma_w`` and the
 rotational gusts) with one number, W20. So one scale ``k = sigma_flown / sigma_design``
-(``floor <= k <= 1``) multiplies the standard deviations of the turbulence states' driving
+(``floor <= k <= ceiling``) multiplies the standard deviations of the turbulence states' driving
 noise, and of the part of the model-error corrections' driving noise that the gusts make.
 It is learnt by innovation-based covariance matching (Mehra, IEEE TAC 15(2), 1970; Mohamed &
 Schwarz, J. Geodesy 73, 1999). On each IMU channel the leading mode trusts, the
@@ -22,7 +22,9 @@ healthy mode cannot explain, moves the estimate by one rank at most.
 
 The floor keeps the wind learnable. With no driving noise at all (``k = 0``, a design for
 still air), the filter lost the wind and its position in calm air within 10 s. The ceiling is
-the design air: the filter is not built for rougher air (docs/design/real-air-model.md).
+the roughest air the filter is built for over the design's (by default the design itself, 1:
+the real-air model's ``roughest_turbulence``; docs/design/real-air-model.md shows the flights
+that kept it).
 """
 
 from __future__ import annotations
@@ -183,6 +185,8 @@ class TurbulenceAdapter:
         Time between updates of the scale (s).
     floor : float
         Smallest scale.
+    ceiling : float
+        Largest scale.
     turbulence_share : sequence of float, optional
         The part of each of those states' driving variance that is the turbulence's (default
         all of it); the rest stays at the design's.
@@ -196,12 +200,16 @@ class TurbulenceAdapter:
     unexplained_averaging_s: float = 60.0
     period_s: float = 0.5
     floor: float = 0.1
+    ceiling: float = 1.0
     turbulence_share: Sequence[float] | None = None
     _cache: dict[float, ProcessModel] = field(default_factory=dict, init=False, repr=False)
 
     def __post_init__(self) -> None:
-        if not 0.0 < self.floor <= 1.0:
-            raise ValueError(f"turbulence floor: expected 0 < floor <= 1, got {self.floor}")
+        if not 0.0 < self.floor <= 1.0 <= self.ceiling:
+            raise ValueError(
+                "turbulence scale: expected 0 < floor <= 1 <= ceiling, got "
+                f"{self.floor} and {self.ceiling}"
+            )
         if not 0.0 < self.dt_s <= min(self.period_s, self.unexplained_averaging_s):
             raise ValueError(
                 "turbulence adapter: expected 0 < dt_s <= period_s and unexplained_averaging_s"
@@ -322,7 +330,7 @@ class TurbulenceAdapter:
         ratio = float(np.median(np.maximum(excess[ready], 0.0) / predicted[ready]))
         ratio = min(max(ratio, math.exp(-4.0)), math.exp(4.0))
         scale2 = scale * scale * ratio ** (self.period_s / self.averaging_s)
-        return min(max(math.sqrt(scale2), self.floor), 1.0)
+        return min(max(math.sqrt(scale2), self.floor), self.ceiling)
 
     def process_at(self, scale: float) -> ProcessModel:
         """The process model with the turbulence's driving noise at ``scale`` (sigmas)."""
