@@ -125,3 +125,5 @@ def test_the_turbulence_ceiling_is_the_roughest_airs_w20_over_the_designs() -> N
         RealAirModel(roughest_turbulence="light")
     with pytest.raises(ValueError, match="roughest_turbulence"):
         RealAirModel(roughest_turbulence="hurricane")
+    with pytest.raises(ValueError, match="still air"):
+        RealAirModel(design_turbulence="none", roughest_turbulence="severe")

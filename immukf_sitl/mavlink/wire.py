@@ -104,7 +104,19 @@ def open_tlog_reader(path: str) -> MavConnection:
 #: Linux's SO_TIMESTAMPNS (= SCM_TIMESTAMPNS), which Python's socket module does not name.
 _SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)
 _TIMESPEC = struct.Struct("qq")
+_TIMESPEC_32 = struct.Struct("ii")  # a 32-bit userspace's timespec (an armhf companion computer)
 _MAX_DATAGRAM = 65535
+
+
+def _timespec_ns(payload: bytes) -> int | None:
+    """A ``struct timespec`` of the kernel's ABI in nanoseconds (64- or 32-bit longs)."""
+    if len(payload) >= _TIMESPEC.size:
+        seconds, nanoseconds = _TIMESPEC.unpack(payload[: _TIMESPEC.size])
+    elif len(payload) >= _TIMESPEC_32.size:
+        seconds, nanoseconds = _TIMESPEC_32.unpack(payload[: _TIMESPEC_32.size])
+    else:
+        return None
+    return seconds * 1_000_000_000 + nanoseconds
 
 
 class DatagramReader:
@@ -115,8 +127,9 @@ class DatagramReader:
     (``SO_TIMESTAMPNS``, Linux; CLOCK_REALTIME, so it includes the time the datagram waited in
     the socket's queue), and the caller hands the bytes to a pymavlink parser. Elsewhere the
     stamp is the time of the read (``kernel_stamps`` is then False). Some kernels (sandboxes such
-    as gVisor) accept the option and attach no stamp: the first datagram without one turns
-    ``kernel_stamps`` False, so what the lag is measured from is never claimed wrongly.
+    as gVisor) accept the option and attach no stamp: the first datagram that arrives without
+    one (its ancillary data not cut short) turns ``kernel_stamps`` False, and every datagram from
+    then on is stamped at its read, so one report never mixes the two.
 
     Parameters
     ----------
@@ -140,7 +153,7 @@ class DatagramReader:
                 self.kernel_stamps = True
             except OSError:  # pragma: no cover - an old kernel
                 pass
-        self._ancillary = socket.CMSG_SPACE(_TIMESPEC.size)
+        self._ancillary = 4 * socket.CMSG_SPACE(_TIMESPEC.size)  # room beside the stamp
 
     def fileno(self) -> int:
         """The socket's descriptor (for ``select``)."""
@@ -152,16 +165,20 @@ class DatagramReader:
         ``arrival_ns`` is on the ``time.time_ns()`` clock.
         """
         try:
-            data, ancillary, _, sender = self.sock.recvmsg(_MAX_DATAGRAM, self._ancillary)
+            data, ancillary, flags, sender = self.sock.recvmsg(_MAX_DATAGRAM, self._ancillary)
         except (BlockingIOError, InterruptedError):
             return None
         except ConnectionRefusedError:  # an ICMP error of an earlier send: nothing to read
             return None
+        if not self.kernel_stamps:
+            return data, time.time_ns(), sender
         for level, kind, payload in ancillary:
             if level == socket.SOL_SOCKET and kind == _SO_TIMESTAMPNS:
-                seconds, nanoseconds = _TIMESPEC.unpack(payload[: _TIMESPEC.size])
-                return data, seconds * 1_000_000_000 + nanoseconds, sender
-        self.kernel_stamps = False  # the option was accepted but no stamp came
+                stamp_ns = _timespec_ns(payload)
+                if stamp_ns is not None:
+                    return data, stamp_ns, sender
+        if not flags & getattr(socket, "MSG_CTRUNC", 0):
+            self.kernel_stamps = False  # the option was accepted but no stamp came: read times
         return data, time.time_ns(), sender
 
     def accept_peer(self, sender: tuple) -> None:

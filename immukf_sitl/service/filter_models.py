@@ -576,7 +576,7 @@ class RealAirModel(FilterModel):
     """The model of a real airframe in real air: 30 states, noise from documented quantities.
 
     The design air (``design_turbulence`` moderate, ``design_height_m`` 150 m,
-    ``design_airspeed_mps`` 25 m/s) is the roughest MIL-F-8785C air the filter is meant to hold in;
+    ``design_airspeed_mps`` 25 m/s) is by default the roughest MIL-F-8785C air it is meant to hold in;
     with ``adaptive_turbulence`` the wind and gust states' driving noise is scaled in flight to the
     air the innovations show, between ``turbulence_floor`` (0.1) times the design's and
     ``roughest_turbulence``'s (by W20; None, the default: the design's; severe's 1.5 was flown
@@ -664,6 +664,13 @@ class RealAirModel(FilterModel):
                     f"{name}: expected one of {', '.join(TURBULENCE_LEVELS)}, "
                     f"got {getattr(self, name)!r}"
                 )
+        if self.roughest_turbulence not in (None, "none") and not (
+            TURBULENCE_LEVELS[self.design_turbulence].w20_mps
+        ):
+            raise ValueError(
+                "roughest_turbulence: a design for still air has no turbulence to scale, got "
+                f"{self.roughest_turbulence!r}"
+            )
         if self.turbulence_ceiling < 1.0:
             raise ValueError(
                 f"roughest_turbulence: expected at least the design's "
