@@ -576,12 +576,12 @@ class RealAirModel(FilterModel):
     """The model of a real airframe in real air: 30 states, noise from documented quantities.
 
     The design air (``design_turbulence`` moderate, ``design_height_m`` 150 m,
-    ``design_airspeed_mps`` 25 m/s) is by default the roughest MIL-F-8785C air it is meant to hold in;
-    with ``adaptive_turbulence`` the wind and gust states' driving noise is scaled in flight to the
-    air the innovations show, between ``turbulence_floor`` (0.1) times the design's and
-    ``roughest_turbulence``'s (by W20; None, the default: the design's; severe's 1.5 was flown
-    on the tuning draw and not taken, docs/design/real-air-model.md), from
-    ``turbulence_averaging_s`` (10 s) averages. With ``score_unexplained`` and the untrusted modes,
+    ``design_airspeed_mps`` 25 m/s) is by default the roughest MIL-F-8785C air it is meant to hold
+    in; with ``adaptive_turbulence`` the wind and gust states' driving noise is scaled in flight to
+    the air the innovations show, between ``turbulence_floor`` (0.1) times the design's and
+    ``roughest_turbulence``'s (by W20; None, the default: the design's; severe's 1.5 was flown on
+    the tuning draw and not taken, docs/design/real-air-model.md), from ``turbulence_averaging_s``
+    (10 s) averages. With ``score_unexplained`` and the untrusted modes,
     each IMU channel's and each GPS channel's variance beyond ``S`` over the last minute (the
     base's innovations, a declared channel's forgotten at its declaration) is added to ``S``
     where the modes are scored, not in the gain. ``model_uncertainty`` (10 % aero, 5 % mass,

@@ -2,11 +2,11 @@
 
 The real-air model drives its wind and rotational-gust states as hard as its design air
 (:class:`~immukf_sitl.service.filter_models.RealAirModel`, moderate turbulence: by default the
-roughest it is meant to hold in). In calmer air that design trusts the model's prediction of the IMU far less
-than the air allows (in calm air the healthy filter's accelerometer innovations have about half
-the standard deviation it predicts), and the wind and gust states explain away a dead channel's
-small change of reading before its mode can win. A design for calm air fails the other way, in
-rough air. So the intensity is estimated, not assumed.
+roughest it is meant to hold in). In calmer air that design trusts the model's prediction of the IMU
+far less than the air allows (in calm air the healthy filter's accelerometer innovations have about
+half the standard deviation it predicts), and the wind and gust states explain away a dead channel's
+small change of reading before its mode can win. A design for calm air fails the other way, in rough
+air. So the intensity is estimated, not assumed.
 
 MIL-F-8785C scales every gust intensity (``sigma_u``, ``sigma_v``, ``sigma_w`` and the
 rotational gusts) with one number, W20. So one scale ``k = sigma_flown / sigma_design``
