@@ -656,26 +656,25 @@ class RealAirModel(FilterModel):
 
     def __post_init__(self) -> None:
         self._check_signature()
-        for name in ("design_turbulence", "roughest_turbulence"):
-            if name == "roughest_turbulence" and self.roughest_turbulence is None:
-                continue  # the design air
-            if getattr(self, name) not in TURBULENCE_LEVELS:
+        levels = ", ".join(TURBULENCE_LEVELS)
+        if self.design_turbulence not in TURBULENCE_LEVELS:
+            raise ValueError(
+                f"design_turbulence: expected one of {levels}, got {self.design_turbulence!r}"
+            )
+        roughest = self.roughest_turbulence  # None: the design air
+        if roughest is not None:
+            if roughest not in TURBULENCE_LEVELS:
+                raise ValueError(f"roughest_turbulence: expected one of {levels}, got {roughest!r}")
+            if roughest != "none" and not TURBULENCE_LEVELS[self.design_turbulence].w20_mps:
                 raise ValueError(
-                    f"{name}: expected one of {', '.join(TURBULENCE_LEVELS)}, "
-                    f"got {getattr(self, name)!r}"
+                    "roughest_turbulence: a design for still air has no turbulence to scale, "
+                    f"got {roughest!r}"
                 )
-        if self.roughest_turbulence not in (None, "none") and not (
-            TURBULENCE_LEVELS[self.design_turbulence].w20_mps
-        ):
-            raise ValueError(
-                "roughest_turbulence: a design for still air has no turbulence to scale, got "
-                f"{self.roughest_turbulence!r}"
-            )
-        if self.turbulence_ceiling < 1.0:
-            raise ValueError(
-                f"roughest_turbulence: expected at least the design's "
-                f"({self.design_turbulence}), got {self.roughest_turbulence!r}"
-            )
+            if self.turbulence_ceiling < 1.0:
+                raise ValueError(
+                    f"roughest_turbulence: expected at least the design's "
+                    f"({self.design_turbulence}), got {roughest!r}"
+                )
         self._check_positive(
             process_noise_factor=self.process_noise_factor,
             design_airspeed_mps=self.design_airspeed_mps,
