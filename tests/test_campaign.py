@@ -408,6 +408,40 @@ def test_fault_free_window_and_false_declaration_rate() -> None:
     assert rate["hours"] == pytest.approx(160.0 / 3600.0)
     assert rate["per_hour"] == pytest.approx(3 * 3600.0 / 160.0)  # 67.5 per hour
     assert math.isnan(false_declaration_rate(rows[2:3])["per_hour"])
+    assert rate["flights"] == 3 and rate["flights_with_declarations"] == 2  # no seed: each its own
+
+
+def test_false_declarations_count_each_common_random_number_flight_once() -> None:
+    """A replicate's runs in one air fly the same flight until their faults (one seed: airframe,
+    noise, turbulence), so a false declaration before the faults is one event and the flight's
+    fault-free time counts once, for its longest window. By hand: the q at 26.55 s was seen by
+    the fault-free run (110 s) and by two faulted runs (faults at 40 and 63.85 s), an x at 70 s
+    only by the fault-free run; the same seed in another air is another flight."""
+    from immukf_sitl.experiments.metrics import false_declaration_rate, fault_free_flights
+
+    def row(air: str, fault: str, fault_t: str, exposure: str, declarations: str) -> dict:
+        return {
+            "seed": "84783481", "air": air, "loop": "closed", "variant": "imm",
+            "filter_model": "real-air", "fault": fault, "fault_t_s": fault_t,
+            "fault_free_s": exposure, "declarations": declarations,
+            "false_declarations_fault_free": str(len(declarations.split())),
+        }  # fmt: skip
+
+    rows = [
+        row("light", "none", "43.68", "110", "q@26.55 x@70.00"),
+        row("light", "x", "40.00", "30", "q@26.55"),
+        row("light", "y", "63.85", "53.85", "q@26.55 y@64.00"),  # y@64 is after its fault
+        row("calm", "none", "20.00", "110", ""),
+    ]
+    rows[2]["false_declarations_fault_free"] = "1"
+    flights = sorted(fault_free_flights(rows), key=lambda f: f.exposure_s)
+    assert [f.exposure_s for f in flights] == [110.0, 110.0]
+    assert sorted(f.declarations for f in flights) == [(), ("q@26.55", "x@70.00")]
+    rate = false_declaration_rate(rows)
+    assert rate["declarations"] == 2 and rate["hours"] == pytest.approx(220.0 / 3600.0)
+    assert rate["flights"] == 2 and rate["flights_with_declarations"] == 1
+    # counted per run, as before: 4 declarations in 303.85 s
+    assert sum(int(r["false_declarations_fault_free"]) for r in rows) == 4
 
 
 def _row(**cells: str) -> dict[str, str]:
@@ -468,7 +502,7 @@ def test_matrix_summary_on_a_hand_made_run_set() -> None:
     assert ident["fault_free_attitude_nees_median"] == pytest.approx(1.2)
     false = summary["overall"]["false_declarations"]
     assert false["declarations"] == 2 and false["hours"] == pytest.approx(292.0 / 3600.0, abs=1e-6)
-    assert false["by_mode"] == {"q": 1, "x": 1} and false["runs_with_declarations"] == 2
+    assert false["by_mode"] == {"q": 1, "x": 1} and false["flights_with_declarations"] == 2
     (flight,) = summary["flights"]
     assert flight["imm_over_ukf2_mse"] == pytest.approx(1.5)
     att = summary["overall"]["attitude"]

@@ -498,9 +498,11 @@ def _kind_acceptance_lines(data: dict, mark: Callable[[bool], str]) -> list[str]
 def _false_declaration_lines(groups: list[tuple[str, dict]]) -> list[str]:
     lines = [
         "\n**False declarations in fault-free flight** (IMM; from the end of the settling "
-        "period to the fault, or to the end of a fault-free flight):\n",
+        "period to the fault, or to the end of a fault-free flight; the runs of one replicate, "
+        "air and loop fly the same flight until their faults, so each such flight counts once, "
+        "for its longest fault-free time):\n",
         "| air | fault-free flight (h) | declarations | per hour | 95 % upper bound per hour "
-        "| runs with any | modes |",
+        "| flights with any | modes |",
         "|---|---|---|---|---|---|---|",
     ]
     for air, g in groups:
@@ -509,7 +511,7 @@ def _false_declaration_lines(groups: list[tuple[str, dict]]) -> list[str]:
         lines.append(
             f"| {air} | {_n(f['hours'], '.3f')} | {f['declarations']} | "
             f"{_n(f['per_hour'], '.1f')} | {_n(f.get('per_hour_upper_95'), '.2f')} | "
-            f"{f['runs_with_declarations']}/{f['runs']} | "
+            f"{f['flights_with_declarations']}/{f['flights']} | "
             f"{modes} |"
         )
     return lines

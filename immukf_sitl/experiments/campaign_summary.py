@@ -12,7 +12,11 @@ from collections.abc import Sequence
 
 from scipy.stats import chi2
 
-from immukf_sitl.experiments.metrics import false_declaration_rate
+from immukf_sitl.experiments.metrics import (
+    false_declaration_rate,
+    fault_free_flights,
+    pre_fault_events,
+)
 from immukf_sitl.experiments.tables import (
     Row,
 )
@@ -80,13 +84,7 @@ def pre_fault_declarations(row: Row) -> list[str]:
 
     ``declarations`` holds ``mode@t`` items; the detector declares nothing while it settles.
     """
-    fault_t = _float(row["fault_t_s"]) if row["fault"] != "none" else math.inf
-    out = []
-    for item in row.get("declarations", "").split():
-        mode, _, t_text = item.partition("@")
-        if _float(t_text) < fault_t:
-            out.append(mode)
-    return out
+    return [item.partition("@")[0] for item in pre_fault_events(row)]
 
 
 def _identification(imm: Sequence[Row]) -> dict[str, object]:
@@ -234,10 +232,12 @@ def poisson_rate_upper_95(events: int, hours: float) -> float:
 
 
 def _false_declarations(imm: Sequence[Row]) -> dict[str, object]:
+    """Declarations in fault-free flight, each distinct flight once (common random numbers)."""
     rate = false_declaration_rate(imm)
     modes: dict[str, int] = {}
-    for row in imm:
-        for mode in pre_fault_declarations(row):
+    for flight in fault_free_flights(imm):
+        for event in flight.declarations:
+            mode = event.partition("@")[0]
             modes[mode] = modes.get(mode, 0) + 1
     return {
         "declarations": int(rate["declarations"]),
@@ -246,10 +246,8 @@ def _false_declarations(imm: Sequence[Row]) -> dict[str, object]:
         "per_hour_upper_95": _number(
             poisson_rate_upper_95(int(rate["declarations"]), rate["hours"])
         ),
-        "runs_with_declarations": sum(
-            int(r["false_declarations_fault_free"] or 0) > 0 for r in imm
-        ),
-        "runs": len(imm),
+        "flights_with_declarations": int(rate["flights_with_declarations"]),
+        "flights": int(rate["flights"]),
         "by_mode": dict(sorted(modes.items())),
     }
 
