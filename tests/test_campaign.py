@@ -274,6 +274,12 @@ def test_resume_flies_only_what_is_missing_and_a_failed_run_is_recorded(
     assert second.rows[:2] == first.rows[:2]
     with open(tmp_path / "out" / "runs.csv", newline="") as f:
         assert tuple(next(csv.reader(f))) == COLUMNS
+    # the report's wall time is this invocation's, and it says which runs it does not cover
+    from immukf_sitl.experiments.campaign_report import write_outputs
+
+    write_outputs(campaign, second.rows, tmp_path / "out", second.wall_s, "cmd", False, 2)
+    report = (tmp_path / "out" / "report.md").read_text()
+    assert "s for the runs flown here (2 kept from an earlier invocation, not timed)." in report
 
 
 def test_resume_refuses_another_campaigns_directory(tmp_path: Path) -> None:

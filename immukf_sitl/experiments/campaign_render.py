@@ -229,6 +229,15 @@ def _imm_discussion(summary: dict) -> str:
     )
 
 
+def _wall_text(summary: dict) -> str:
+    """The wall time, and the runs it does not cover when some were kept from an earlier run."""
+    text = f"{summary['wall_s']:.0f} s"
+    kept = int(summary.get("resumed") or 0)
+    if kept:
+        text += f" for the runs flown here ({kept} kept from an earlier invocation, not timed)"
+    return text
+
+
 def _header(campaign: Campaign, summary: dict, command: str) -> dict[str, object]:
     """What every report's head names: the campaign, the command, the runs flown and failed."""
     return {
@@ -278,7 +287,7 @@ def paper_report(
         flight=flight,
         loops=", ".join(campaign.loops),
         replicates=campaign.replicates,
-        wall_s=f"{summary['wall_s']:.0f}",
+        wall_s=_wall_text(summary),
         counts=counts,
         lateral_m=f"{failure.lateral_m:g}",
         vertical_m=f"{failure.vertical_m:g}",
@@ -641,7 +650,7 @@ def matrix_report(
         airs=", ".join(a.name for a in campaign.air),
         filter_models=", ".join(campaign.filter_models),
         when=when,
-        wall_s=f"{summary['wall_s']:.0f}",
+        wall_s=_wall_text(summary),
         commit=commit,
         tables=tables,
         figure_text=f"![Fig. 2](fig2.png)\n\nFig. 2: {caption}.\n" if caption else "",

@@ -41,13 +41,18 @@ def write_outputs(
     wall_s: float,
     command: str,
     figure: bool = True,
+    resumed: int = 0,
 ) -> dict[str, object]:
     """Write the tables, ``fig2.png`` and ``report.md``; return the ``--json`` object.
+
+    ``wall_s`` is this invocation's; ``resumed`` runs were kept from an earlier one
+    (``--resume``), whose time it does not hold, and the report says so.
 
     A campaign with ``report: matrix`` gets the real-air matrix measurement instead of the paper's
     comparison in ``report.md``, and ``matrix.json``, ``matrix.md`` and ``delays.png``.
     """
     summary = summary_json(campaign.name, rows, wall_s)
+    summary["resumed"] = resumed
     if campaign.report == "matrix":
         return _write_matrix(campaign, rows, out_dir, summary, command, figure)
     t1_md, t1_csv = table1(rows)

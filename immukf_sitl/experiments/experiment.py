@@ -71,9 +71,10 @@ def _main(args: argparse.Namespace) -> int:
     )
     command = f"immukf-sitl experiment {args.campaign}"
     summary = write_outputs(
-        campaign, result.rows, out_dir, result.wall_s, command, figure=not args.no_figure
-    )
-    summary["flown"], summary["resumed"] = result.flown, result.skipped
+        campaign, result.rows, out_dir, result.wall_s, command, figure=not args.no_figure,
+        resumed=result.skipped,
+    )  # fmt: skip
+    summary["flown"] = result.flown
     for name, v in summary["variants"].items():
         print(
             f"experiment: {name}: {v['stable']}/{v['runs']} stable, {v['critical']} critical",
