@@ -39,14 +39,14 @@ def _adapter(**changes) -> TurbulenceAdapter:
 def _fly(
     adapter: TurbulenceAdapter, q_true: np.ndarray, seconds: float, seed: int,
     dead: int | None = None, trusted: np.ndarray | None = None,
-    unmodelled_var: np.ndarray | None = None,
+    unmodelled_var: np.ndarray | None = None, p0: float = 1.0,
 ) -> TurbulenceEstimate:  # fmt: skip
     """Six scalar random walks, each filtered with the adapter's noise at its current scale."""
     rng = np.random.default_rng(seed)
     trusted = np.ones(6, dtype=bool) if trusted is None else trusted
     x = np.zeros(6)
     x_hat = np.zeros(6)
-    p = np.full(6, 1.0)
+    p = np.full(6, p0)
     est = TurbulenceEstimate()
     for _ in range(round(seconds / DT_S)):
         q = np.diagonal(adapter.process_at(est.scale).state_noise_cov)
@@ -97,6 +97,24 @@ def test_unexplained_variance_is_the_noise_the_filter_does_not_model() -> None:
     assert np.all(TurbulenceEstimate().unexplained_var() == 0.0)  # nothing seen: nothing added
     forgotten = est.forget_unexplained(np.arange(6) == 2).unexplained_var()
     assert forgotten[2] == 0.0 and np.all(forgotten[[0, 1, 3, 4, 5]] == beyond[[0, 1, 3, 4, 5]])
+
+
+def test_a_start_up_transient_does_not_hide_the_unexplained_variance() -> None:
+    """The filter starts 10^5 R uncertain (an alignment's): its first innovations have
+    ``S >> nu^2``. Each sample weighs by what it tells of the variance (1 / (S + q)^2), so 30 s
+    in, half the 60 s time constant, the 3 R the filter does not model is already shown, as it
+    is after a start-up 10^5 times less uncertain (an unweighted average of ``nu^2 - S`` is
+    negative, so 0, for over a minute). The scale is held at the truth's (floor = ceiling = 1),
+    so every other channel is consistent."""
+    unmodelled = np.array([0.0, 0.0, 3.0 * R, 0.0, 0.0, 0.0])
+    truth = np.full(6, Q_DESIGN)
+    pinned = _adapter(floor=1.0, ceiling=1.0)
+    est = _fly(pinned, truth, 30.0, seed=17, unmodelled_var=unmodelled, p0=1e5 * R)
+    beyond = est.unexplained_var()
+    assert beyond[2] == pytest.approx(3.0 * R, rel=0.25)
+    assert np.all(beyond[[0, 1, 3, 4, 5]] < 0.3 * R)
+    settled = _fly(pinned, truth, 30.0, seed=17, unmodelled_var=unmodelled, p0=R)
+    assert beyond[2] == pytest.approx(settled.unexplained_var()[2], rel=0.05)
 
 
 def test_the_fixes_unexplained_variance_is_their_spread_beyond_s() -> None:

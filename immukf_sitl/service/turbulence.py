@@ -17,8 +17,9 @@ Schwarz, J. Geodesy 73, 1999). On each IMU channel the leading mode trusts, the
 innovation variance beyond the sensor noise, ``<nu^2 - R>``, is compared with what the filter
 predicted beyond it, ``<S - R>``; both are exponential averages over ``averaging_s``. The
 median of the channels' ratios moves ``k^2`` geometrically toward consistency, with gain
-``period / averaging_s`` per update. The median means a dead channel, whose innovation the
-healthy mode cannot explain, moves the estimate by one rank at most.
+``period / averaging_s`` per update.
+The median means a dead channel, whose innovation the healthy mode cannot explain, moves the
+estimate by one rank at most.
 
 The floor keeps the wind learnable. With no driving noise at all (``k = 0``, a design for
 still air), the filter lost the wind and its position in calm air within 10 s. The ceiling is
@@ -47,6 +48,19 @@ _CLIP_SIGMAS = 5.0
 
 
 @numba.njit(cache=True)
+def _information(s: float, q: float) -> float:
+    """What one innovation of variance ``s + q`` tells of ``q``: ``1 / (s + q)^2`` (Fisher's, x2).
+
+    ``nu ~ N(0, S + q)`` gives ``q`` the information ``1 / (2 (S + q)^2)``, so the maximum-
+    likelihood ``q`` of many samples is their average of ``nu^2 - S`` weighted by it. A sample
+    whose ``S`` is the filter's start-up uncertainty (``S`` 10^3 times the air's) weighs 10^-6 of
+    one in steady flight, where an unweighted average carried its ``nu^2 - S`` (large and
+    negative) for a minute and hid the spread the filter does not explain.
+    """
+    return 1.0 / max(s + q, 1e-300) ** 2
+
+
+@numba.njit(cache=True)
 def _fold(
     excess: np.ndarray, predicted: np.ndarray, weight: np.ndarray, beyond: np.ndarray,
     beyond_weight: np.ndarray, nu: np.ndarray, s: np.ndarray, r: np.ndarray,
@@ -55,7 +69,8 @@ def _fold(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:  # fmt: skip
     """One step into the averages of ``nu^2 - R``, ``S - R``, ``nu^2 - S`` and their weights.
 
-    The first two are the leading mode's, the third the base mode's.
+    The first two are the leading mode's, the third the base mode's, each sample of the third
+    weighted by what it tells of the variance (:func:`_information`, at the estimate so far).
     """
     n = excess.shape[0]
     for i in range(n):
@@ -76,8 +91,12 @@ def _fold(
         new_weight[i] = weight[i] + g * (1.0 - weight[i])
         h = alpha_beyond * trusted_base[i]
         nu2_base = min(nu_base[i] * nu_base[i], _CLIP_SIGMAS * _CLIP_SIGMAS * s_base[i])
-        new_beyond[i] = beyond[i] + h * (nu2_base - s_base[i] - beyond[i])
-        new_beyond_weight[i] = beyond_weight[i] + h * (1.0 - beyond_weight[i])
+        q = 0.0
+        if beyond_weight[i] > 0.0:
+            q = max(beyond[i], 0.0) / beyond_weight[i]
+        info = _information(s_base[i], q)
+        new_beyond[i] = (1.0 - h) * beyond[i] + h * info * (nu2_base - s_base[i])
+        new_beyond_weight[i] = (1.0 - h) * beyond_weight[i] + h * info
     return new_excess, new_predicted, new_weight, new_beyond, new_beyond_weight
 
 
@@ -96,14 +115,14 @@ class TurbulenceEstimate:
     weight : ndarray, shape (6,)
         Total weight of the averages per channel (1 once ``averaging_s`` of data is in).
     beyond : ndarray, shape (6,)
-        Average ``nu^2 - S`` per IMU channel over ``unexplained_averaging_s`` (unit^2).
+        Exponential sum over ``unexplained_averaging_s`` of ``(nu^2 - S) / (S + q)^2`` per IMU
+        channel, ``q`` the average so far (:func:`_information`; unit^-2).
     beyond_weight : ndarray, shape (6,)
-        Total weight of that average per channel.
+        The same sum of ``1 / (S + q)^2``: ``beyond / beyond_weight`` is the average.
     steps : int
         Steps since the last change of ``scale``.
     gps_beyond, gps_beyond_weight : ndarray, shape (n,)
-        Average ``nu^2 - S`` of the base mode's GPS channels over ``unexplained_averaging_s``
-        and its weight (empty before the first fix).
+        The same sums for the base mode's GPS channels (empty before the first fix).
     gps_t_s : float
         Time of the last fix folded in (NaN: none yet).
     """
@@ -131,10 +150,11 @@ class TurbulenceEstimate:
         )
 
     def unexplained_var(self) -> np.ndarray:
-        """``(6,)``: the average ``nu^2`` beyond the average ``S``, per channel (unit^2).
+        """``(6,)``: the variance ``q`` the innovations show beyond ``S``, per channel (unit^2).
 
         What the innovations show that the filter's covariance does not (at least 0): the
-        averages over what has been seen, so from the first steps (0 on a channel not seen
+        maximum-likelihood ``q`` of ``nu ~ N(0, S + q)``, one scoring step a sample, over what
+        has been seen, so from the first steps (0 on a channel not seen
         yet). The scale ``k`` is one number for every channel; this is what each channel keeps
         beyond it.
         """
@@ -300,7 +320,8 @@ class TurbulenceAdapter:
         """Fold one fix's innovations of the base mode into the average of ``nu^2 - S``.
 
         Each fix weighs by the time since the previous one (``unexplained_averaging_s`` time
-        constant), and counts at most :data:`_CLIP_SIGMAS` sigmas, as the IMU channels do.
+        constant) times what it tells of the variance (:func:`_information`), and counts at
+        most :data:`_CLIP_SIGMAS` sigmas, as the IMU channels do.
         """
         nu = np.asarray(innovation, dtype=float)
         s = np.asarray(innovation_var, dtype=float)
@@ -313,10 +334,12 @@ class TurbulenceAdapter:
         elapsed = t_s - estimate.gps_t_s if math.isfinite(estimate.gps_t_s) else self.dt_s
         g = -math.expm1(-max(elapsed, 0.0) / self.unexplained_averaging_s)
         nu2 = np.minimum(nu * nu, _CLIP_SIGMAS * _CLIP_SIGMAS * s)
+        q = _average(beyond, weight)
+        info = 1.0 / np.maximum(s + q, 1e-300) ** 2  # as _information
         return dataclasses.replace(
             estimate,
-            gps_beyond=beyond + g * (nu2 - s - beyond),
-            gps_beyond_weight=weight + g * (1.0 - weight),
+            gps_beyond=(1.0 - g) * beyond + g * info * (nu2 - s),
+            gps_beyond_weight=(1.0 - g) * weight + g * info,
             gps_t_s=float(t_s),
         )
 
