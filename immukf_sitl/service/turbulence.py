@@ -17,9 +17,8 @@ Schwarz, J. Geodesy 73, 1999). On each IMU channel the leading mode trusts, the
 innovation variance beyond the sensor noise, ``<nu^2 - R>``, is compared with what the filter
 predicted beyond it, ``<S - R>``; both are exponential averages over ``averaging_s``. The
 median of the channels' ratios moves ``k^2`` geometrically toward consistency, with gain
-``period / averaging_s`` per update.
-The median means a dead channel, whose innovation the healthy mode cannot explain, moves the
-estimate by one rank at most.
+``period / averaging_s`` per update. The median means a dead channel, whose innovation the
+healthy mode cannot explain, moves the estimate by one rank at most.
 
 The floor keeps the wind learnable. With no driving noise at all (``k = 0``, a design for
 still air), the filter lost the wind and its position in calm air within 10 s. The ceiling is
@@ -156,9 +155,8 @@ class TurbulenceEstimate:
 
         What the innovations show that the filter's covariance does not (at least 0): the
         maximum-likelihood ``q`` of ``nu ~ N(0, S + q)``, one scoring step a sample, over what
-        has been seen, so from the first steps (0 on a channel not seen
-        yet). The scale ``k`` is one number for every channel; this is what each channel keeps
-        beyond it.
+        has been seen, so from the first steps (0 on a channel not seen yet). The scale ``k``
+        is one number for every channel; this is what each channel keeps beyond it.
         """
         return _average(self.beyond, self.beyond_weight)
 
