@@ -450,6 +450,39 @@ def test_false_declarations_count_each_common_random_number_flight_once() -> Non
     assert sum(int(r["false_declarations_fault_free"]) for r in rows) == 4
 
 
+def test_the_json_summary_counts_false_declarations_per_distinct_flight() -> None:
+    """``experiment --json`` gives the report's rate, not one pooled over the runs' whole
+    flights. By hand: three runs of one seed fly one flight until their faults (longest
+    fault-free window 110 s, one q at 26.55 s seen by two of them); a second seed flies 90 s
+    with none. 1 in 200 s is 18 per hour, bounded at 95 % by chi2(0.95, 4) / 2 = 4.744 events
+    in 200 s (Garwood)."""
+    from immukf_sitl.experiments.tables import summary_json
+
+    def row(seed: str, fault: str, exposure: str, declarations: str, early: int, wrong: int):
+        return _row(
+            seed=seed, variant="imm", loop="closed", fault=fault, fault_t_s="40.00",
+            fault_free_s=exposure, declarations=declarations, flown_s="150",
+            false_declarations=str(wrong), false_declarations_fault_free=str(early),
+        )  # fmt: skip
+
+    rows = [
+        row("7", "none", "110", "q@26.55", 1, 1),
+        row("7", "x", "36", "q@26.55", 1, 1),
+        row("7", "y", "36", "y@41.00", 0, 0),  # its own channel, after its fault
+        row("8", "none", "90", "", 0, 0),
+        row("8", "z", "36", "z@41.00 p@52.00", 0, 1),  # p declared after the fault
+    ]
+    ident = summary_json("hand", rows, 1.0)["imm_identification"]
+    assert ident["false_declarations"] == 1
+    assert ident["fault_free_hours"] == pytest.approx(200.0 / 3600.0, abs=1e-6)  # 6 places
+    assert ident["false_declarations_per_hour"] == pytest.approx(18.0)
+    chi2_95_dof_4 = 9.487729  # chi2.ppf(0.95, 4), from a printed table
+    assert ident["false_declarations_per_hour_upper_95"] == pytest.approx(
+        chi2_95_dof_4 / 2.0 / (200.0 / 3600.0), rel=1e-5
+    )
+    assert ident["wrong_declarations"] == 3  # the q twice (two runs) and the p
+
+
 def _row(**cells: str) -> dict[str, str]:
     row = dict.fromkeys(COLUMNS, "")
     row.update(status="stable", filter_model="real-air", air="calm", replicate="0")
@@ -607,7 +640,7 @@ def test_the_false_declaration_bound_is_the_exact_poisson_one() -> None:
     Garwood bound, checked against the Poisson CDF it inverts."""
     from scipy.stats import poisson
 
-    from immukf_sitl.experiments.campaign_summary import poisson_rate_upper_95
+    from immukf_sitl.experiments.metrics import poisson_rate_upper_95
 
     assert poisson_rate_upper_95(0, 1.339) == pytest.approx(-math.log(0.05) / 1.339)
     assert poisson_rate_upper_95(0, 3.0) < 1.0  # the issue's "below 1 per hour" needs 3 h

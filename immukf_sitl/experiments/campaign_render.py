@@ -225,7 +225,10 @@ def _imm_discussion(summary: dict) -> str:
         delay_median=fmt(ident["detection_delay_s_median"] or math.nan),
         delay_max=fmt(ident["detection_delay_s_max"] or math.nan),
         false_declarations=ident["false_declarations"],
+        hours=fmt(ident["fault_free_hours"] or 0.0),
         per_hour=fmt(ident["false_declarations_per_hour"] or 0.0),
+        upper=fmt(ident["false_declarations_per_hour_upper_95"] or math.nan),
+        wrong=ident["wrong_declarations"],
     )
 
 

@@ -10,11 +10,10 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
-from scipy.stats import chi2
-
 from immukf_sitl.experiments.metrics import (
     false_declaration_rate,
     fault_free_flights,
+    poisson_rate_upper_95,
     pre_fault_events,
 )
 from immukf_sitl.experiments.tables import (
@@ -217,18 +216,6 @@ def _by_kind(
             "survived": sum(survived(r, fault_free[_flight_key(r)]) for r in twinned),
         }
     return out
-
-
-def poisson_rate_upper_95(events: int, hours: float) -> float:
-    """The 95 % upper confidence bound of a Poisson rate (per hour) from ``events`` in ``hours``.
-
-    Exact (Garwood): ``chi2.ppf(0.95, 2 (events + 1)) / (2 hours)``; with no event it is
-    ``-ln(0.05) / hours``, about ``3 / hours``: zero false declarations in 1.34 h only say "below
-    2.2 per hour". NaN without flight time.
-    """
-    if not hours or hours <= 0.0:
-        return math.nan
-    return float(chi2.ppf(0.95, 2 * (events + 1)) / (2.0 * hours))
 
 
 def _false_declarations(imm: Sequence[Row]) -> dict[str, object]:

@@ -51,6 +51,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.stats import chi2
 
 from immukf_sitl.experiments.campaign import FailureCriterion, RunSpec
 from immukf_sitl.experiments.inprocess import InProcessRun
@@ -357,6 +358,18 @@ def false_declaration_rate(rows: Sequence[Mapping[str, str]]) -> dict[str, float
         "flights": len(flights),
         "flights_with_declarations": sum(1 for f in flights if f.count),
     }
+
+
+def poisson_rate_upper_95(events: int, hours: float) -> float:
+    """The 95 % upper confidence bound of a Poisson rate (per hour) from ``events`` in ``hours``.
+
+    Exact (Garwood): ``chi2.ppf(0.95, 2 (events + 1)) / (2 hours)``; with no event it is
+    ``-ln(0.05) / hours``, about ``3 / hours``: zero false declarations in 1.34 h only say "below
+    2.2 per hour". NaN without flight time.
+    """
+    if not hours or hours <= 0.0:
+        return math.nan
+    return float(chi2.ppf(0.95, 2 * (events + 1)) / (2.0 * hours))
 
 
 def identification_metrics(
