@@ -426,15 +426,15 @@ def test_a_declared_channel_named_noisy_is_read_at_its_factor_squared(kind, size
 
 
 def test_a_named_channels_gain_is_known_unless_its_name_is_a_gain_or_a_dead_reading():
-    """q named a bias, a drift, a noise or spikes reads at its own gain (g = 0; a bias's
-    drift rate held at 0 too, the others' learnt); renamed a gain, or named stuck or zero, its
-    gain is learnt again; an undeclared channel's name is not kept, and a release forgets the
-    channel's."""
+    """q named a bias, a drift, a noise or spikes reads at its own gain (g = 0; the drift rate
+    held at 0 too but for a drift); renamed a gain, or named stuck or zero, its gain is learnt
+    again; an undeclared channel's name is not kept, and a release forgets the channel's."""
     det = DeclaredSetDetector(DetectorConfig(settle_s=0.0), 0.0, FaultMode(1 << Q))
     assert det.error_holds() == {}  # not named yet: all learnt
     for t_s, kind in enumerate(("bias", "drift", "noise", "spikes")):
         det.named(Q, kind, 2.0, float(t_s))
-        assert det.error_holds() == {Q: (0.0 if kind == "bias" else None, 0.0)}, kind
+        assert det.error_holds() == {Q: (None if kind == "drift" else 0.0, 0.0)}, kind
+    det.named(Q, "drift", 0.01, 5.0)
     det.named(0, "bias", 1.0, 6.0)  # x is not declared
     assert det.error_holds() == {Q: (None, 0.0)}
     for kind in ("scale", "bias", "stuck", "bias", "zero"):
@@ -447,13 +447,14 @@ def test_a_named_channels_gain_is_known_unless_its_name_is_a_gain_or_a_dead_read
 
 def test_a_bias_the_slow_test_declared_keeps_its_drift_rate_learnt():
     """r declared slowly at the GPS fixes (a failure that grew too slowly for the
-    probabilities) and named a bias: its drift rate stays learnt; released and declared again
-    by the probabilities, a bias holds it at 0."""
+    probabilities) and named a bias, a noise or spikes: its drift rate stays learnt; released
+    and declared again by the probabilities, a bias holds it at 0."""
     det = DeclaredSetDetector(DetectorConfig(settle_s=0.0), 0.0)
     events = _fly_fixes(det, 4.0, _rest(6, 30.0), np.random.default_rng(11))
     assert [(e.kind, e.mode.name) for e in events] == [("detected", "r")]
-    det.named(5, "bias", 0.02, 3.0)
-    assert det.error_holds() == {5: (None, 0.0)}
+    for kind in ("noise", "spikes", "bias"):
+        det.named(5, kind, 0.02, 3.0)
+        assert det.error_holds() == {5: (None, 0.0)}, kind
     det._change(5)  # released
     det._change(5)  # declared again, not by the slow test
     det.named(5, "bias", 0.02, 9.0)

@@ -86,14 +86,14 @@ from immukf_sitl.service.detection import DetectionEvent, DetectorConfig, Signat
 #: a declared channel's (drift rate, gain) by the kind it was named (None: learnt), in the
 #: states' units: a bias, a drift, a noise or spikes leave the sensor's gain alone (g = 0); a
 #: gain learns its own, and a zero or a stuck reading learns -1 (it reads nothing of the
-#: state). A bias does not drift; a drift named a bias is common, but it is one the slow test
-#: declared (a step shows in the probabilities), whose drift rate stays learnt
+#: state). A bias, a noise and spikes do not drift; a drift named one of them is one the slow
+#: test declared (a step shows in the probabilities), whose drift rate stays learnt
 #: (:meth:`DeclaredSetDetector.error_holds`; docs/design)
 _NAMED_ERRORS: dict[str, tuple[float | None, float | None]] = {
     "bias": (0.0, 0.0),
     "drift": (None, 0.0),
-    "noise": (None, 0.0),
-    "spikes": (None, 0.0),
+    "noise": (0.0, 0.0),
+    "spikes": (0.0, 0.0),
 }
 #: the slow-evidence test's window: three fixes at the 1 Hz of the campaigns' GPS (a fault
 #: mode's own history is about 1 s, ``history_floor / onset`` steps, so each fix is nearly
@@ -234,10 +234,11 @@ class DeclaredSetDetector:
         :meth:`~immukf_sitl.estimation.fault_modes.ChannelOffset.holding`: a channel named a
         bias, a drift, a noise or spikes reads its rate at the sensor's own gain. Learnt, a
         declared gyro's gain took up the model's error of the rate it predicts in turbulence.
-        A channel named a bias does not drift either, unless the slow test declared it: a
-        failure that grew too slowly for the probabilities is a drift, whatever its first
-        seconds looked like. Learnt, a biased gyro's drift rate let its offset wander by
-        hundredths of a rad/s, and the base lost the attitude the gyro was read for.
+        A channel named a bias, a noise or spikes does not drift either, unless the slow test
+        declared it: a failure that grew too slowly for the probabilities is a drift, whatever
+        its first seconds looked like. Learnt, a biased gyro's drift rate let its offset wander
+        by hundredths of a rad/s, and the base lost the attitude the gyro was read for; a noisy
+        yaw gyro's, read at its noise, left the heading to the model as if the gyro were dead.
         """
         return dict(self._holds)
 
