@@ -498,3 +498,39 @@ def test_the_slow_window_holds_three_fixes_at_1_hz_whatever_the_times_rounding()
         rest = evidence if k % 100 == 0 else None
         events += det.update(t_s, _probs(6, 1e-9), _imu(rng), SIGMAS, _innovations(rng), rest=rest)
     assert events == []
+
+
+Z = 2
+
+
+def _flipping(k: int) -> np.ndarray:
+    """The lead handed between slot z (3) and slot q (5) every third sample; the base at 0."""
+    out = np.zeros(7)
+    out[3 if k % 3 else 5] = 1.0
+    return out
+
+
+@pytest.mark.parametrize(("z_ahead_nats", "declared"), [(40.0, "z"), (0.0, None)])
+def test_a_lead_handed_between_failure_slots_is_settled_by_the_window_evidence(
+    z_ahead_nats, declared
+):
+    """x and z dead at once: no slot of the bank is right, and the lead flips between slot z and
+    slot q (which explains a dead z by a pitch rate of its own) every third sample, so no
+    slot holds the threshold for the dwell. Over the window, slot z's log-likelihoods beat
+    slot q's by ``z_ahead_nats`` (2 nats a sample) and the base's by far more: z is declared
+    at the dwell. Tied with slot q, nothing is declared (not told apart)."""
+    rng = np.random.default_rng(21)
+    det = DeclaredSetDetector(DetectorConfig(settle_s=0.0), 0.0)
+    events = []
+    for k in range(60):
+        reading = _imu(rng)
+        reading[[X, Z]] = rng.normal(0.0, SIGMAS[[X, Z]])
+        ll = np.full(7, -500.0)
+        ll[3] = -50.0 + z_ahead_nats / 20
+        ll[5] = -50.0
+        events += det.update(
+            k * 0.01, _flipping(k), reading, SIGMAS, _innovations(rng), log_likelihoods=ll
+        )
+    assert [e.mode.name for e in events if e.kind == "detected"] == ([declared] if declared else [])
+    if declared:  # the dwell counts from the first sample of the bank's certainty
+        assert events[0].t_s == pytest.approx(0.2)

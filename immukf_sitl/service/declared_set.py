@@ -34,6 +34,11 @@ channel's failure: the mode ``D + c`` is always in the bank.
   train, which no learnt offset yet calls an outlier); a *second* spike while the slot holds
   the threshold confirms the failure as the sustained test's "without its largest sample"
   does.
+- **Declare on a handed-over lead**: when the slots of new failures *together* hold
+  ``threshold`` for ``dwell_s`` but the lead passes between them, the one whose
+  log-likelihoods over the window beat slot 0's and each other slot's by ``ln(q / (1 - q))``
+  stands for the dwell, its channel showing a failure as above. Two channels failing at once
+  leave no slot right, and the lead flips between the slots that explain one of them each.
 - **Release** channel ``c`` in ``D`` when, for ``clear_dwell_s``, slot ``D - c`` (the
   recovery) stays above ``1 - clear_threshold`` or the offset the base learnt for the channel
   stays within its uncertainty of zero while known to ``alive_sigmas`` noise sigmas (a channel
@@ -187,6 +192,7 @@ class DeclaredSetDetector:
         self._since: dict[int, float] = {}  # slot -> when it crossed its level
         self._outliers: dict[int, int] = {}  # slot -> spikes on its channel since then
         self._base_low_since: float | None = None
+        self._failed_since: float | None = None  # new-failure slots together at the threshold
         self._unisolated_said = False
         self._window = SignatureWindow(config)
         self._life: dict[int, float] = {}  # declared channel -> decayed count of life
@@ -261,6 +267,7 @@ class DeclaredSetDetector:
         self._since.clear()
         self._outliers.clear()
         self._base_low_since = None
+        self._failed_since = None
         self._unisolated_said = False
         self._window.forget_residuals()
         self._evidence.clear()
@@ -372,6 +379,12 @@ class DeclaredSetDetector:
             else:
                 self._since.pop(j, None)
                 self._outliers.pop(j, None)
+        new = [1 + c for c in range(N_IMU) if not self._bits >> c & 1]
+        if new and float(np.sum(probabilities[new])) >= cfg.threshold:
+            if self._failed_since is None:
+                self._failed_since = t_s
+        else:
+            self._failed_since = None
         for channel in range(N_IMU):
             if not self._bits >> channel & 1:
                 continue
@@ -387,23 +400,17 @@ class DeclaredSetDetector:
                 return [DetectionEvent("cleared", mode, t_s, p, declared_after=self._after())]
         if t_s - self.start_s < cfg.settling():
             return []
-        for j, since in sorted(self._since.items(), key=lambda kv: -probabilities[kv[0]]):
+        leaders = [
+            j
+            for j, since in sorted(self._since.items(), key=lambda kv: -probabilities[kv[0]])
+            if not self._bits >> (j - 1) & 1 and t_s - since >= cfg.dwell_s
+        ]
+        handed = self._handed_over(t_s)
+        if handed is not None and handed not in leaders:
+            leaders.append(handed)
+        for j in leaders:
             channel = j - 1
-            if self._bits >> channel & 1 or t_s - since < cfg.dwell_s:
-                continue
-            failed = np.arange(N_IMU) == channel
-            if (
-                self._window.reads_zero(failed)
-                or (
-                    (
-                        self._window.offset_beyond(j, failed)
-                        or self._seen_failing(failure_weights, j, channel)
-                        or self._window.base_inconsistent(failed)
-                    )
-                    and self._sustained(j)
-                )
-                or self._outliers.get(j, 0) >= _SPIKES_TO_DECLARE
-            ):
+            if self._shows_failure(j, channel, failure_weights):
                 mode = FaultMode(1 << channel)
                 self._change(channel)
                 p = float(probabilities[j])
@@ -417,6 +424,46 @@ class DeclaredSetDetector:
             p = -math.expm1(-nats)  # the window passes by chance with at most exp(-nats)
             return [DetectionEvent("detected", mode, t_s, p, declared_after=self._after())]
         return self._unisolated(t_s, probabilities)
+
+    def _shows_failure(self, j: int, channel: int, failure_weights: np.ndarray | None) -> bool:
+        """Whether ``channel``, its slot ``j`` in the lead, shows a failure (module docstring)."""
+        failed = np.arange(N_IMU) == channel
+        return (
+            self._window.reads_zero(failed)
+            or (
+                (
+                    self._window.offset_beyond(j, failed)
+                    or self._seen_failing(failure_weights, j, channel)
+                    or self._window.base_inconsistent(failed)
+                )
+                and self._sustained(j)
+            )
+            or self._outliers.get(j, 0) >= _SPIKES_TO_DECLARE
+        )
+
+    def _handed_over(self, t_s: float) -> int | None:
+        """The slot the window's evidence picks when the lead passed between failure slots.
+
+        While the new-failure slots together held the threshold for ``dwell_s`` (the bank is
+        sure that something failed) but no one slot held it throughout: the slot whose
+        log-likelihoods summed over the window beat slot 0's and every other new-failure
+        slot's by ``ln(q / (1 - q))``, as a bank without transitions would weigh them. Two
+        channels failing at once leave no slot of the bank right: each slot that explains one
+        failure is refuted sample by sample by the other, and a slot that explains a dead
+        normal accelerometer by a pitch rate of its own (the gyro it leaves out) wins samples
+        from the accelerometer's. The lead then flips between them every few samples and no
+        one dwell completes, though over the window the accelerometer's slot is ahead by
+        hundreds of nats. None: no such slot.
+        """
+        if self._failed_since is None or t_s - self._failed_since < self.config.dwell_s:
+            return None
+        if not self._evidence:
+            return None
+        sums = np.sum(np.array(self._evidence), axis=0)  # each slot's over slot 0's
+        rivals = [0] + [1 + c for c in range(N_IMU) if not self._bits >> c & 1]
+        best = max(rivals[1:], key=lambda j: sums[j])
+        runner_up = max(sums[j] for j in rivals if j != best)
+        return best if sums[best] - runner_up >= self._sustained_nats else None
 
     def _slow_slot(self, probabilities: np.ndarray) -> tuple[int, float] | None:
         """The slot its evidence at the GPS fixes declares, and that evidence in nats.
