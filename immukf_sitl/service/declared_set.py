@@ -379,7 +379,7 @@ class DeclaredSetDetector:
             else:
                 self._since.pop(j, None)
                 self._outliers.pop(j, None)
-        new = [1 + c for c in range(N_IMU) if not self._bits >> c & 1]
+        new = self._new_failure_slots()
         if new and float(np.sum(probabilities[new])) >= cfg.threshold:
             if self._failed_since is None:
                 self._failed_since = t_s
@@ -425,6 +425,10 @@ class DeclaredSetDetector:
             return [DetectionEvent("detected", mode, t_s, p, declared_after=self._after())]
         return self._unisolated(t_s, probabilities)
 
+    def _new_failure_slots(self) -> list[int]:
+        """The slots that add a failure to the declared set (one per channel not declared)."""
+        return [1 + c for c in range(N_IMU) if not self._bits >> c & 1]
+
     def _shows_failure(self, j: int, channel: int, failure_weights: np.ndarray | None) -> bool:
         """Whether ``channel``, its slot ``j`` in the lead, shows a failure (module docstring)."""
         failed = np.arange(N_IMU) == channel
@@ -460,7 +464,7 @@ class DeclaredSetDetector:
         if not self._evidence:
             return None
         sums = np.sum(np.array(self._evidence), axis=0)  # each slot's over slot 0's
-        rivals = [0] + [1 + c for c in range(N_IMU) if not self._bits >> c & 1]
+        rivals = [0, *self._new_failure_slots()]
         best = max(rivals[1:], key=lambda j: sums[j])
         runner_up = max(sums[j] for j in rivals if j != best)
         return best if sums[best] - runner_up >= self._sustained_nats else None
