@@ -44,3 +44,15 @@ def with_fault_at(name: str, t_s: float, out_dir: Path) -> Path:
     path = Path(out_dir) / f"{Path(name).stem}_at_{t_s:g}s.yaml"
     path.write_text(yaml.safe_dump(spec, sort_keys=False))
     return path
+
+
+def thinned(stream: list, kind: type, period_s: float) -> list:
+    """Every sample of ``kind`` at least ``period_s`` after the last kept; the rest as is."""
+    out, next_s = [], -1.0
+    for sample in stream:
+        if isinstance(sample, kind):
+            if sample.time_s + 1e-6 < next_s:
+                continue
+            next_s = sample.time_s + period_s
+        out.append(sample)
+    return out

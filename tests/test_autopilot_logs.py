@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from flights import thinned
 
 from immukf_sitl.errors import UserError
 from immukf_sitl.experiments.replay import replay, summary_of
@@ -44,18 +45,6 @@ def _detections(log: FlightLog) -> list[tuple[str, float]]:
     return [(d["mode"], round(d["t_s"], 2)) for d in summary["detections"]]
 
 
-def _thinned(stream: list, kind: type, period_s: float) -> list:
-    """Every sample of ``kind`` at least ``period_s`` after the last kept; the rest as is."""
-    out, next_s = [], -1.0
-    for sample in stream:
-        if isinstance(sample, kind):
-            if sample.time_s + 1e-6 < next_s:
-                continue
-            next_s = sample.time_s + period_s
-        out.append(sample)
-    return out
-
-
 def _write_ardupilot_tlog(
     path: Path, log: FlightLog, imu_hz: float, servo_hz: float, mav_type: int
 ) -> None:
@@ -64,8 +53,8 @@ def _write_ardupilot_tlog(
     HEARTBEAT, the firmware STATUSTEXT and ArduPilot's own messages (AHRS2, HWSTATUS)."""
     vehicle = mavlink.MAVLink(None, 1, 1)
     gcs = mavlink.MAVLink(None, 255, 190)
-    stream = _thinned(log.stream, ImuSample, 1.0 / imu_hz)
-    stream = _thinned(stream, ActuatorSample, 1.0 / servo_hz)
+    stream = thinned(log.stream, ImuSample, 1.0 / imu_hz)
+    stream = thinned(stream, ActuatorSample, 1.0 / servo_hz)
     with TlogWriter(path) as tlog:
 
         def put(mav: mavlink.MAVLink, msg: mavlink.MAVLink_message, t_s: float) -> None:

@@ -37,6 +37,22 @@ def test_two_channels_failing_at_once_are_both_identified():
     assert sorted(d["mode"] for d in out["detections"]) == ["q", "x"]
 
 
+def test_two_biases_at_once_are_both_identified():
+    """An x accelerometer bias and an r gyro bias in the same sample: x is declared, and the
+    bank re-based on it, re-run from before the failure, sees r fail too. Re-based from the
+    estimate at x's declaration, whose rates had followed the biased r for the dwell, it
+    found r only at 0.65 s, and declared p and y wrongly."""
+    faults = (
+        FaultSpec(t_s=14.0, channels=("x",), kind="bias", value=0.8),
+        FaultSpec(t_s=14.0, channels=("r",), kind="bias", value=-0.07),
+    )
+    out = fly("q_gyro_zeroed.yaml", PaperModel(fault_signature="untrusted"), faults, 20.0)
+    assert out["false_alarms"] == 0, out["detections"]
+    x, r = out["faults"]
+    assert x["detection_delay_s"] <= 0.5 and r["detection_delay_s"] <= 0.5, out["detections"]
+    assert x["named_kind"] == "bias" and x["named_size"] == pytest.approx(0.8, rel=0.2)
+
+
 def test_a_recovered_channel_is_released_once_it_shows_life():
     """An r gyro frozen from 14 to 29 s: declared, then released after the recovery (the clear
     dwell, 5 s, plus the life it must show), and not declared again."""

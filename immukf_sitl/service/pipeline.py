@@ -53,6 +53,7 @@ from immukf_sitl.service.filters import (
     VariantEstimate,
     build_estimator,
 )
+from immukf_sitl.service.recent_steps import RecentSteps, Step, rerun
 from immukf_sitl.service.stream_rate import StreamRate, averaged_var_scale
 
 #: airspeeds tried, in turn, for the warm-up's steady flight (any aircraft in the params'
@@ -225,6 +226,8 @@ class EstimatorPipeline:
         self._last_gps_s: float | None = None
         self._gps_rejections = 0
         self._restart_at_s: float | None = None
+        #: the last steps, which a declaration re-runs on the re-based bank
+        self._recent = RecentSteps()
         self._geodetic: LocalGeodetic | None = None
         #: the navigation solution of ``self.estimate`` (the GPS gate reuses the last step's)
         self._nav: NavSolution | None = None
@@ -502,9 +505,9 @@ class EstimatorPipeline:
         self._nav = None
         self.counters.predict_steps += steps
         for k in range(1, steps + 1):
-            self.estimate = self.estimator.step(
-                self.estimate, start_s + k * IMU_PERIOD_S, self._controls, nothing
-            )
+            t_s = start_s + k * IMU_PERIOD_S
+            self._recent.record(Step(self.estimator, self.estimate, t_s, self._controls, nothing))
+            self.estimate = self.estimator.step(self.estimate, t_s, self._controls, nothing)
 
     @property
     def rebases(self) -> bool:
@@ -583,13 +586,20 @@ class EstimatorPipeline:
     def _rebase(self, declared: bool) -> None:
         """Move the bank and its estimate onto the detector's declared set.
 
-        A declaration is a belief: where the evidence that made it is not the probabilities
-        (the slow test), the re-based bank's base starts at 0.99.
+        A declaration re-runs the re-based bank over the last steps
+        (:mod:`~immukf_sitl.service.recent_steps`), from before the failure showed: a channel
+        that failed at once with the declared one is then seen failing, not followed. A
+        declaration is a belief: where the base had not won at the start of the re-run, or
+        the evidence that made it is not the probabilities (the slow test), the re-based
+        bank's base starts at 0.99.
         """
         assert isinstance(self.estimator, AircraftEstimator) and self.estimate is not None
         assert self.detector is not None
         rebased = self.estimator.rebased(self.detector.declared)
-        moved = rebased.carried_over(self.estimate, self.estimator)
+        steps = self._recent.taken_by(self.estimator) if declared else []
+        self._recent.clear()
+        start = steps[0].estimate if steps else self.estimate
+        moved = rebased.carried_over(start, self.estimator)
         if declared and moved.filter.mode_probabilities[0] < self.detector.config.threshold:
             probs = rebased.probabilities_believing(self.detector.declared)
             bank = moved.filter
@@ -599,7 +609,7 @@ class EstimatorPipeline:
                     bank, mode_probabilities=probs, log_mode_probabilities=np.log(probs)
                 ),
             )
-        self.estimate = moved
+        self.estimate = rerun(rebased, moved, steps)
         self.estimator = rebased
         self._sensitivity = None  # of the re-based bank's state
 
@@ -641,8 +651,10 @@ class EstimatorPipeline:
         observation = Observation(
             imu, gps, self._imu_var_scale, *self._held_controls(t_s), self._failed_var_scale()
         )
+        self._recent.record(Step(self.estimator, self.estimate, t_s, self._controls, observation))
         est = self.estimator.step(self.estimate, t_s, self._controls, observation)
         if self._restart_at_s is not None and t_s >= self._restart_at_s:
+            self._recent.clear()
             # the odds the modes took while the filters converged from the alignment measure
             # that convergence (S >> R), not the sensors: they restart at the prior (what the
             # detector declared stays believed); the seed still distrusts the leading mode's
