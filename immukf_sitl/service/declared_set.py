@@ -193,6 +193,8 @@ class DeclaredSetDetector:
         self._outliers: dict[int, int] = {}  # slot -> spikes on its channel since then
         self._base_low_since: float | None = None
         self._failed_since: float | None = None  # new-failure slots together at the threshold
+        #: when the last declared failure took the bank's lead (None: the slow test declared it)
+        self.failing_since_s: float | None = None
         self._unisolated_said = False
         self._window = SignatureWindow(config)
         self._life: dict[int, float] = {}  # declared channel -> decayed count of life
@@ -411,6 +413,8 @@ class DeclaredSetDetector:
         for j in leaders:
             channel = j - 1
             if self._shows_failure(j, channel, failure_weights):
+                failed = self._failed_since if self._failed_since is not None else math.inf
+                self.failing_since_s = min(self._since.get(j, math.inf), failed)
                 mode = FaultMode(1 << channel)
                 self._change(channel)
                 p = float(probabilities[j])
@@ -421,6 +425,7 @@ class DeclaredSetDetector:
             mode = FaultMode(1 << (j - 1))
             self._change(j - 1)
             self._slowly.add(j - 1)
+            self.failing_since_s = None
             p = -math.expm1(-nats)  # the window passes by chance with at most exp(-nats)
             return [DetectionEvent("detected", mode, t_s, p, declared_after=self._after())]
         return self._unisolated(t_s, probabilities)

@@ -594,9 +594,10 @@ class EstimatorPipeline:
         bank's base starts at 0.99.
         """
         assert isinstance(self.estimator, AircraftEstimator) and self.estimate is not None
-        assert self.detector is not None
+        assert isinstance(self.detector, DeclaredSetDetector)
         rebased = self.estimator.rebased(self.detector.declared)
-        steps = self._recent.taken_by(self.estimator) if declared else []
+        since = self.detector.failing_since_s if declared else None
+        steps = [] if since is None else self._recent.taken_by(self.estimator, since)
         self._recent.clear()
         start = steps[0].estimate if steps else self.estimate
         moved = rebased.carried_over(start, self.estimator)
