@@ -61,7 +61,7 @@ def test_a_rerun_over_the_recorded_steps_is_the_flight_again(imu_hz, servo_hz):
     if imu_hz is not None:
         assert any(s.observation.control_sensitivity is not None for s in steps)
         assert sum(not np.isfinite(s.observation.imu).any() for s in steps) == 25
-    again = rerun(pipeline.estimator, steps[0].estimate, steps)
+    again, evidence = rerun(pipeline.estimator, steps[0].estimate, steps)
     np.testing.assert_array_equal(again.filter.mode_means, pipeline.estimate.filter.mode_means)
     np.testing.assert_array_equal(again.filter.mode_covs, pipeline.estimate.filter.mode_covs)
     np.testing.assert_array_equal(

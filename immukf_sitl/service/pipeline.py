@@ -586,12 +586,12 @@ class EstimatorPipeline:
     def _rebase(self, declared: bool) -> None:
         """Move the bank and its estimate onto the detector's declared set.
 
-        A declaration re-runs the re-based bank over the last steps
-        (:mod:`~immukf_sitl.service.recent_steps`), from before the failure showed: a channel
-        that failed at once with the declared one is then seen failing, not followed. A
-        declaration is a belief: where the base had not won at the start of the re-run, or
-        the evidence that made it is not the probabilities (the slow test), the re-based
-        bank's base starts at 0.99.
+        A declaration also re-runs the re-based bank from the step at which the declared
+        failure took the lead (:mod:`~immukf_sitl.service.recent_steps`), and keeps the re-run
+        where a slot that adds a failure out-scored the base over it by ``ln(q / (1 - q))``
+        (``q = signature_quantile``): a channel that failed at once with the declared one,
+        which the estimate at the declaration has followed. Elsewhere the bank goes on from
+        that estimate.
         """
         assert isinstance(self.estimator, AircraftEstimator) and self.estimate is not None
         assert isinstance(self.detector, DeclaredSetDetector)
@@ -599,8 +599,30 @@ class EstimatorPipeline:
         since = self.detector.failing_since_s if declared else None
         steps = [] if since is None else self._recent.taken_by(self.estimator, since)
         self._recent.clear()
-        start = steps[0].estimate if steps else self.estimate
-        moved = rebased.carried_over(start, self.estimator)
+        moved = self._carried_over(rebased, self.estimate, declared)
+        if steps:
+            start = self._carried_over(rebased, steps[0].estimate, declared)
+            rerun_estimate, evidence = rerun(rebased, start, steps)
+            base = rebased.modes[0].bits
+            new = [j for j, mode in enumerate(rebased.modes) if mode.bits & ~base]
+            q = self.detector.config.signature_quantile
+            if new and float(np.max(evidence[new])) >= math.log(q / (1.0 - q)):
+                moved = rerun_estimate
+        self.estimate = moved
+        self.estimator = rebased
+        self._sensitivity = None  # of the re-based bank's state
+
+    def _carried_over(
+        self, rebased: AircraftEstimator, estimate: VariantEstimate, declared: bool
+    ) -> VariantEstimate:
+        """``estimate`` on the re-based bank's slots.
+
+        A declaration is a belief: where the evidence that made it is not the probabilities
+        (the slow test), or where the base had not won yet (the start of a re-run), the
+        re-based bank's base starts at 0.99.
+        """
+        assert isinstance(self.estimator, AircraftEstimator) and self.detector is not None
+        moved = rebased.carried_over(estimate, self.estimator)
         if declared and moved.filter.mode_probabilities[0] < self.detector.config.threshold:
             probs = rebased.probabilities_believing(self.detector.declared)
             bank = moved.filter
@@ -610,9 +632,7 @@ class EstimatorPipeline:
                     bank, mode_probabilities=probs, log_mode_probabilities=np.log(probs)
                 ),
             )
-        self.estimate = rerun(rebased, moved, steps)
-        self.estimator = rebased
-        self._sensitivity = None  # of the re-based bank's state
+        return moved
 
     def _held_controls(self, t_s: float) -> tuple[np.ndarray | None, ControlSensitivity | None]:
         """The variance of the held controls' error at ``t_s`` and the model's sensitivity.

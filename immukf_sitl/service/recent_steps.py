@@ -70,15 +70,19 @@ class RecentSteps:
         return out[::-1]
 
 
-def rerun(bank: AircraftEstimator, estimate: VariantEstimate, steps: list[Step]) -> VariantEstimate:
-    """``estimate`` of ``bank`` stepped again over ``steps``' inputs.
+def rerun(
+    bank: AircraftEstimator, estimate: VariantEstimate, steps: list[Step]
+) -> tuple[VariantEstimate, np.ndarray]:
+    """``estimate`` of ``bank`` stepped again over ``steps``' inputs, and each slot's evidence.
 
-    A step's controls' sensitivity is of the state of the bank that took it: kept where
-    ``bank``'s state has the same layout (a re-run on the same bank is the flight again),
-    taken anew about ``estimate``, once, where it grew (two states per declared channel), as
-    the service takes it once per servo sample.
+    The evidence is each slot's log-likelihoods (eq. 25) summed over the re-run's updated
+    steps, less the base's: ``(r,)``. A step's controls' sensitivity is of the state of the
+    bank that took it: kept where ``bank``'s state has the same layout (a re-run on the same
+    bank is the flight again), taken anew about ``estimate``, once, where it grew (two states
+    per declared channel), as the service takes it once per servo sample.
     """
     n_states = estimate.filter.mean.shape[0]
+    evidence = np.zeros(len(bank.modes))
     fresh = None
     for step in steps:
         observation = step.observation
@@ -88,4 +92,6 @@ def rerun(bank: AircraftEstimator, estimate: VariantEstimate, steps: list[Step])
                 fresh = bank.control_sensitivity(estimate)
             observation = dataclasses.replace(observation, control_sensitivity=fresh)
         estimate = bank.step(estimate, step.t_s, step.controls, observation)
-    return estimate
+        if estimate.filter.updated:
+            evidence += estimate.filter.log_likelihoods - estimate.filter.log_likelihoods[0]
+    return estimate, evidence
