@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 from pathlib import Path
 
 import numpy as np
@@ -62,6 +63,9 @@ def test_a_rerun_over_the_recorded_steps_is_the_flight_again(imu_hz, servo_hz):
         assert any(s.observation.control_sensitivity is not None for s in steps)
         assert sum(not np.isfinite(s.observation.imu).any() for s in steps) == 25
     again, evidence = rerun(pipeline.estimator, steps[0].estimate, steps)
+    # nothing failed: no slot that adds a failure out-scores the base (the re-run a
+    # declaration keeps only where one does by ln(0.999 / 0.001) = 6.9 nats)
+    assert evidence[0] == 0.0 and np.max(evidence[1:]) < math.log(0.999 / 0.001)
     np.testing.assert_array_equal(again.filter.mode_means, pipeline.estimate.filter.mode_means)
     np.testing.assert_array_equal(again.filter.mode_covs, pipeline.estimate.filter.mode_covs)
     np.testing.assert_array_equal(
