@@ -13,8 +13,9 @@ declared channel failed: re-run from 0.5 s back, the pairs campaign's second bia
 after the first were flown with the attitude lost more often after the first declaration
 (median MSE 0.48 -> 4.2 deg^2; not traced). And the re-run is kept only where it shows a
 second failure (the service's ``_rebase``): kept at every declaration, the same runs that
-declared the same channels at the same times lost the attitude in four of 33 (a calm p+q
-0.29 -> 5.2 deg^2, a moderate z+r 2.1 -> 388; not traced either).
+declared the same channels at the same times, four of 33 more than doubled their attitude
+MSE after the first declaration (a calm p+q 0.29 -> 5.2 deg^2; a moderate z+r 2.1 -> 388,
+lost; not traced either).
 
 ``REPLAY_S`` (0.5 s) bounds the re-run: the dwell, and the wait of a lead whose channel's
 failure tests pass later; about 20 of the real-air bank's steps are re-run at a declaration.
