@@ -215,6 +215,11 @@ class DeclaredSetDetector:
         self._last_t_s: float | None = None
 
     @property
+    def sustained_nats(self) -> float:
+        """``ln(q / (1 - q))`` (``q = signature_quantile``): evidence that makes a mode likely."""
+        return self._sustained_nats
+
+    @property
     def declared(self) -> FaultMode | None:
         """The declared set (None: nothing)."""
         return FaultMode(self._bits) if self._bits else None

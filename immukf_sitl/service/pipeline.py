@@ -506,7 +506,10 @@ class EstimatorPipeline:
         self.counters.predict_steps += steps
         for k in range(1, steps + 1):
             t_s = start_s + k * IMU_PERIOD_S
-            self._recent.record(Step(self.estimator, self.estimate, t_s, self._controls, nothing))
+            if self.rebases:  # the re-run of a declaration's re-based bank
+                self._recent.record(
+                    Step(self.estimator, self.estimate, t_s, self._controls, nothing)
+                )
             self.estimate = self.estimator.step(self.estimate, t_s, self._controls, nothing)
 
     @property
@@ -605,8 +608,7 @@ class EstimatorPipeline:
             rerun_estimate, evidence = rerun(rebased, start, steps)
             base = rebased.modes[0].bits
             new = [j for j, mode in enumerate(rebased.modes) if mode.bits & ~base]
-            q = self.detector.config.signature_quantile
-            if new and float(np.max(evidence[new])) >= math.log(q / (1.0 - q)):
+            if new and float(np.max(evidence[new])) >= self.detector.sustained_nats:
                 moved = rerun_estimate
         self.estimate = moved
         self.estimator = rebased
@@ -672,7 +674,10 @@ class EstimatorPipeline:
         observation = Observation(
             imu, gps, self._imu_var_scale, *self._held_controls(t_s), self._failed_var_scale()
         )
-        self._recent.record(Step(self.estimator, self.estimate, t_s, self._controls, observation))
+        if self.rebases:  # the re-run of a declaration's re-based bank
+            self._recent.record(
+                Step(self.estimator, self.estimate, t_s, self._controls, observation)
+            )
         est = self.estimator.step(self.estimate, t_s, self._controls, observation)
         if self._restart_at_s is not None and t_s >= self._restart_at_s:
             self._recent.clear()
