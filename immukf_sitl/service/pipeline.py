@@ -506,10 +506,7 @@ class EstimatorPipeline:
         self.counters.predict_steps += steps
         for k in range(1, steps + 1):
             t_s = start_s + k * IMU_PERIOD_S
-            if self.rebases:  # the re-run of a declaration's re-based bank
-                self._recent.record(
-                    Step(self.estimator, self.estimate, t_s, self._controls, nothing)
-                )
+            self._recent.record(Step(self.estimator, self.estimate, t_s, self._controls, nothing))
             self.estimate = self.estimator.step(self.estimate, t_s, self._controls, nothing)
 
     @property
@@ -674,10 +671,7 @@ class EstimatorPipeline:
         observation = Observation(
             imu, gps, self._imu_var_scale, *self._held_controls(t_s), self._failed_var_scale()
         )
-        if self.rebases:  # the re-run of a declaration's re-based bank
-            self._recent.record(
-                Step(self.estimator, self.estimate, t_s, self._controls, observation)
-            )
+        self._recent.record(Step(self.estimator, self.estimate, t_s, self._controls, observation))
         est = self.estimator.step(self.estimate, t_s, self._controls, observation)
         if self._restart_at_s is not None and t_s >= self._restart_at_s:
             self._recent.clear()
