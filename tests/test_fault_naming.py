@@ -6,7 +6,14 @@ import numpy as np
 import pytest
 from scipy.stats import norm
 
-from immukf_sitl.service.fault_naming import FaultNamer, _spikes, classify_failure, second_look
+from immukf_sitl.service.fault_naming import (
+    FaultNamer,
+    _spikes,
+    _texture,
+    classify_failure,
+    roughness,
+    second_look,
+)
 
 SIGMA = 0.00227  # the gyro's noise (rad/s)
 PRED_SIGMA = 0.002  # the declared mode's prediction error of the channel
@@ -315,3 +322,137 @@ def test_too_few_samples_is_an_error():
         classify_failure(np.zeros(2), np.zeros(2), np.zeros(2), np.ones(2), SIGMA)
     with pytest.raises(ValueError, match="at least 3 samples"):
         second_look(np.zeros(2), np.zeros(2), np.zeros(2), np.ones(2), SIGMA)
+
+
+# -- the readings' roughness against the channel's own before the failure --------------------
+
+#: the healthy gyro's roughness in turbulence, in sensor sigmas: the air's rotation reads as
+#: a white component of five times the sensor's noise at 10 ms (z in moderate air: about 11)
+AIR_ROUGHNESS = 5.0
+
+
+def _rough_air(rng, seconds, start_s=30.0):
+    """A true rate with a turbulent component rough at 10 ms, and the healthy reading of it."""
+    n = int(round(100 * seconds))
+    t = start_s + 0.01 * np.arange(n)
+    smooth = 0.12 + 0.1 * np.sin(2.0 * np.pi * 0.7 * (t - 30.0))
+    truth = smooth + AIR_ROUGHNESS * SIGMA * rng.standard_normal(n)
+    return t, truth, truth + SIGMA * rng.standard_normal(n)
+
+
+def _baseline(rng):
+    """The roughness of ten healthy seconds of :func:`_rough_air` before the failure."""
+    t, _, healthy = _rough_air(rng, 10.0, start_s=19.0)
+    return roughness(t, healthy)
+
+
+def test_healthy_roughness_ratios_are_consistent_with_their_sigma():
+    """Bias and drift leave the roughness: ln(ratio) / sigma is a standard normal's draw.
+
+    Over 400 healthy windows of 1 s against 10 s baselines (both the sensor and the air's
+    roughness), the z-scores have a mean within 0.15 of 0 and a standard deviation within
+    15 % of 1 (the sigma is the median absolute deviation's asymptotic one, reduced for the
+    second differences' correlation), and fewer than 1 % of windows read as rough.
+    """
+    scores, rough = [], 0
+    for seed in range(400):
+        rng = np.random.default_rng(1000 + seed)
+        baseline = _baseline(rng)
+        t, _, healthy = _rough_air(rng, 1.0)
+        texture = _texture(t, healthy + 0.05, baseline)
+        scores.append(texture.log_ratio / texture.sigma)
+        rough += texture.rough or texture.spike_size is not None
+    assert abs(np.mean(scores)) < 0.15
+    assert np.std(scores) == pytest.approx(1.0, rel=0.15)
+    assert rough < 4
+
+
+def test_a_noise_in_rough_air_is_named_by_its_roughness_not_a_spiky_residual():
+    # the re-based prediction settles with a few large errors in its first tenths of a second
+    # (a heavy tail in the residual, which a spike mixture fits best); the readings themselves
+    # are as rough as the air before the failure plus a noise of factor 10, 2.2 times as rough
+    # (4.4 sigmas of the ratio over one second). Its factor, read against that roughness,
+    # scatters by about 20 % (1 sigma) over one second of readings in air this rough, and by
+    # 10 % over the five seconds it is read again over
+    for seed in range(5):
+        rng = np.random.default_rng(60 + seed)
+        baseline = _baseline(rng)
+        t, truth, _ = _rough_air(rng, 5.0)
+        h = truth + PRED_SIGMA * rng.standard_normal(t.size)
+        h[[3, 8, 15, 21, 30]] += 0.1
+        z = truth + 10.0 * SIGMA * rng.standard_normal(t.size)
+        s2 = np.full(t.size, S2[0])
+        named = classify_failure(t[:N], z[:N], h[:N], s2[:N], SIGMA, baseline=baseline)
+        assert named.kind == "noise", (seed, named)
+        assert named.size == pytest.approx(10.0, rel=0.5), (seed, named)
+        seconds = classify_failure(t, z, h, s2, SIGMA, baseline=baseline)
+        assert seconds.size == pytest.approx(10.0, rel=0.25), (seed, seconds)
+
+
+def test_spikes_hidden_in_the_prediction_error_are_seen_in_the_readings():
+    # spikes of 0.15 rad/s every 30 samples, where the prediction errs by 0.05 rad/s though
+    # its variance says 0.02 (a base in turbulence): in the residual they are 3 of its
+    # sigmas, a wider normal; in the second differences they are 2 x 0.15 against the air's
+    # 0.03
+    s2 = np.full(N, SIGMA**2 + 0.02**2)
+    for seed in range(5):
+        rng = np.random.default_rng(70 + seed)
+        baseline = _baseline(rng)
+        t, truth, healthy = _rough_air(rng, 1.0)
+        h = truth + 0.05 * rng.standard_normal(N)
+        signs = rng.choice([-1.0, 1.0], N)
+        z = healthy + 0.15 * signs * (np.arange(N) % 30 == 11)
+        named = classify_failure(t, z, h, s2, SIGMA, baseline=baseline)
+        assert named.kind == "spikes", (seed, named)
+        assert named.size == pytest.approx(0.15, rel=0.2), (seed, named)
+
+
+@pytest.mark.parametrize(("gain", "seconds"), [(0.3, 1.0), (0.6, 5.0)])
+def test_a_gain_on_a_channel_holding_still_is_told_from_a_bias_by_its_roughness(gain, seconds):
+    # the rate holds 0.12 rad/s and the prediction sees none of the air's fast part (its
+    # variance says so): the residual reads (g - 1) 0.12 either way, a bias's or a gain's;
+    # the gain also scales the readings' roughness by g, a bias leaves it. Over one second
+    # the ratio's sigma is 0.18 in ln, so a gain of 0.3 stands 6.7 sigmas from a bias; a gain
+    # of 0.6 (2.8 sigmas there) takes the five seconds of the second look (5.7 sigmas)
+    n = int(round(100 * seconds))
+    s2 = np.full(n, S2[0] + (AIR_ROUGHNESS * SIGMA) ** 2)
+    for seed in range(5):
+        rng = np.random.default_rng(80 + seed)
+        baseline = _baseline(rng)
+        t, truth, healthy = _rough_air(rng, seconds)
+        still = healthy - 0.1 * np.sin(2.0 * np.pi * 0.7 * (t - 30.0))
+        h = 0.12 + PRED_SIGMA * rng.standard_normal(n)
+        scaled = classify_failure(t, gain * still, h, s2, SIGMA, baseline=baseline)
+        assert scaled.kind == "scale", (seed, scaled)
+        assert scaled.size == pytest.approx(gain, rel=0.2), (seed, scaled)
+        offset = (gain - 1.0) * 0.12
+        biased = classify_failure(t, still + offset, h, s2, SIGMA, baseline=baseline)
+        assert biased.kind == "bias", (seed, biased)
+
+
+def test_the_namer_reads_the_roughness_before_the_declaration_from_what_it_recorded():
+    # 10 s of rough air recorded, then a noise of factor 8 declared: the namer's name and
+    # factor are classify_failure's with the baseline of those seconds, up to 1 s before
+    rng = np.random.default_rng(90)
+    t_before, _, healthy_before = _rough_air(rng, 11.0, start_s=19.0)
+    t, truth, _ = _rough_air(rng, 1.0)
+    h = truth + PRED_SIGMA * rng.standard_normal(N)
+    z = truth + 8.0 * SIGMA * rng.standard_normal(N)
+    namer = FaultNamer(np.array([0.0245] * 3 + [SIGMA] * 3), second_look_s=0.5)
+    for tk, zk in zip(t_before, healthy_before, strict=True):
+        namer.record(tk, np.array([0.0, 0.0, 0.0, zk, 0.0, 0.0]))
+    namer.declared(0, 3, t_before[-1])
+    nu, var = np.zeros((7, 6)), np.full((7, 6), S2[0])
+    names = []
+    for k in range(N):
+        imu = np.zeros(6)
+        imu[3] = z[k]
+        nu[0, 3] = z[k] - h[k]
+        names += namer.observe(t[k], imu, nu, var)
+    kept = t_before <= t_before[-1] - 1.0 + 1e-9
+    expected = classify_failure(
+        t[:100], z[:100], h[:100], S2, SIGMA,
+        baseline=roughness(t_before[kept], healthy_before[kept]),
+    )  # fmt: skip
+    assert [(c, n.kind) for c, n in names] == [(3, "noise")]
+    assert names[0][1].size == pytest.approx(expected.size, rel=1e-9)

@@ -17,13 +17,37 @@ noise) is an independent estimate of what the channel should read. The readings 
   tail is what tells them from noise, whose every sample is wider: a 2 Hz train puts two
   spikes in the window, too few for a rule on outliers to weigh against the rest.
 
-A noise's factor is then read from the readings themselves: their second differences
-``z(k) - 2 z(k-1) + z(k-2)`` cancel a true value that moves smoothly over 20 ms and leave
-white noise of sigma ``k sqrt(R)`` with variance ``6 k^2 R``. The residual's width overstates
-it by the base's own error of the declared channel (on the held-out draw a gyro's factor of
-4.4 was named 40). One second of readings gives the factor to about 10 %, and the second after
-a declaration is often rougher than the noise (the autopilot answers the re-based estimate), so
-the factor is read again over :data:`SECOND_LOOK_S`.
+That list is the namer's without a record of the channel before its failure. With one (the
+service keeps the last :data:`BASELINE_S` of readings, :meth:`FaultNamer.record`), the readings'
+own texture names a noise and spikes before the residual is looked at, because the residual
+carries the base's error of the channel, often wider and heavier-tailed than ``s2`` says (the
+re-based prediction's settling, turbulence), and named noises spike trains and spike trains
+noises. The second differences ``z(k) - 2 z(k-1) + z(k-2)`` cancel a true
+value that moves smoothly over 20 ms; their robust sigma (the median absolute value over
+0.6745, :class:`Roughness`) is the sensor's noise ``sqrt(6 R)`` plus what the air adds. Against
+the same sigma over the channel's healthy seconds before the declaration (up to
+:data:`BASELINE_GUARD_S` before it), a bias, a drift and a spike train keep it, a gain ``g``
+scales it by ``|g|`` and a noise widens it:
+
+- ``spikes``: more second differences beyond :data:`SPIKE_SIGMAS` robust sigmas than the
+  healthy channel's own rate of them makes likely (a Poisson count at the zero test's quantile);
+  a spike of size ``A`` puts ``A, -2A, A`` there, so the size is half the median peak;
+- ``noise``: the ratio of the two sigmas beyond its sampling spread at that quantile (the
+  median absolute deviation's, about ``sqrt(1.36 / n)`` in ``ln`` for ``n`` independent
+  samples, ``n`` reduced by 36/70 for the second differences' correlation); its factor is the
+  one that widens the healthy roughness by that ratio;
+- otherwise bias, drift and gain by the residual's information criterion as above, each also
+  scored on the ratio it predicts (1 for a bias or a drift, ``|g|`` for a gain, its sigma as
+  above), which tells a gain from a bias where the channel holds still and the residual
+  cannot.
+
+Without a record, a noise's factor is read from the readings' second differences alone, white
+noise of variance ``6 k^2 R`` (in turbulence the air's own roughness reads as a larger factor,
+which the record takes out); the residual's width would overstate it by the base's own error
+of the declared channel (on the held-out draw a gyro's factor of 4.4 was named 40). One second
+of readings gives the factor to about 10 %, and the second after a declaration is often
+rougher than the noise (the autopilot answers the re-based estimate), so the factor is read
+again over :data:`SECOND_LOOK_S`.
 
 A drift is named only when its ramp moves the channel by more than :data:`DRIFT_SIGMAS` sigmas
 of the prediction (``sqrt(s2 - R)``) over the window. The mode declared has not read the channel
@@ -37,10 +61,11 @@ channel moves toward its reading (on the tuning draw, 10 s after an x-accelerome
 0.57 was declared, the prediction read what the faulty channel did), so the residual grows a
 slope that is not the fault's, and gains and biases were named drifts.
 
-A failure named a bias or a drift is looked at again :data:`SECOND_LOOK_S` after its
+A failure named a bias, a drift or a gain is looked at again :data:`SECOND_LOOK_S` after its
 declaration (:func:`second_look`): a drift slow enough to pass for a bias in the first second
 has moved its channel further by then, its rate is read over seconds rather than through the
-re-based prediction's settling, and a gain has seen its channel's true value move. The pull of
+re-based prediction's settling, a gain has seen its channel's true value move, and a spike
+train quiet in its first second (which a gain of nearly 1 explained) has spiked. The pull of
 the prediction toward the reading only ever shrinks the residual, so a residual that keeps
 growing away from zero, by more than the drift rule's sigmas, is the fault's own ramp. The
 failure is named again where the whole window names it otherwise, or a drift at another
@@ -56,11 +81,12 @@ failure is named by every kind over the second look's seconds.
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import minimize_scalar
-from scipy.stats import chi2
+from scipy.stats import chi2, norm, poisson
 
 __all__ = [
     "NAMING_WINDOW_S",
@@ -68,7 +94,9 @@ __all__ = [
     "UNSEEN",
     "FailureName",
     "FaultNamer",
+    "Roughness",
     "classify_failure",
+    "roughness",
     "second_look",
 ]
 
@@ -80,7 +108,8 @@ ZERO_QUANTILE = 0.999
 STUCK_SPREAD_SIGMAS = 0.1
 #: a drift moves its channel by more than this many sigmas of the prediction over the window
 DRIFT_SIGMAS = 3.0
-#: how long after a declaration a failure named a bias, a drift or a noise is looked at again (s)
+#: how long after a declaration a failure named a bias, a drift, a gain or a noise is looked at
+#: again (s)
 SECOND_LOOK_S = 5.0
 #: the name of a window whose best explanation stays within what a healthy sensor reads (the
 #: first second of a spike train that has not spiked again, a gain on a channel holding still):
@@ -88,6 +117,20 @@ SECOND_LOOK_S = 5.0
 UNSEEN = "unseen"
 #: expectation-maximisation steps of the spike mixture's fit (it settles in a few dozen)
 _SPIKE_EM_STEPS = 60
+#: how long before a declaration a channel's readings are kept for its healthy roughness (s)
+BASELINE_S = 10.0
+#: the seconds just before a declaration left out of that: the failure may already act in them
+#: (a jump is declared within the 0.2 s dwell, a noise within a second in most runs)
+BASELINE_GUARD_S = 1.0
+#: the variance of ln(MAD sigma) of n normal samples is about this over n (Hampel 1974: the
+#: median absolute deviation's asymptotic efficiency of 37 %)
+_MAD_LOG_VARIANCE = 1.36
+#: a second difference beyond this many robust sigmas of the readings' roughness is a spike's
+#: (the detectable band's 5)
+SPIKE_SIGMAS = 5.0
+#: second differences of white noise are correlated (lags 1 and 2: -4/6 and 1/6), so n of them
+#: weigh as n * 36 / 70 independent ones in a sum of squares
+_SECOND_DIFFERENCE_DOF = 36.0 / 70.0
 
 
 @dataclass(frozen=True)
@@ -105,6 +148,7 @@ def classify_failure(
     s2: np.ndarray,
     noise_sigma: float,
     band: float | None = None,
+    baseline: Roughness | None = None,
 ) -> FailureName:
     """The kind and size of a failed channel from its readings and the healthy prediction.
 
@@ -124,6 +168,11 @@ def classify_failure(
         Half-width of what a healthy channel may read off the truth (its noise and turn-on
         bias); a bias, drift, gain or spike train that keeps the residual's fitted deviation
         within it shows no failure, and is named :data:`UNSEEN`. None: always a kind.
+    baseline : Roughness, optional
+        The channel's roughness before the failure (:func:`roughness`). Each kind then also
+        explains how rough the readings are against it: a bias, a drift or a spike train leaves
+        it, a gain ``g`` scales it by ``|g|`` and a noise widens it, and the noise's factor is
+        the one that widening says. None: the residual alone names the failure.
     """
     t, z, h, s2 = (np.asarray(a, dtype=float) for a in (t_s, z, h, s2))
     n = z.size
@@ -135,9 +184,20 @@ def classify_failure(
     if np.sum(z * z) / r <= chi2.ppf(ZERO_QUANTILE, n):
         return FailureName("zero", None)
     e = z - h
-    candidates = [
-        _bias(e, s2), _drift(t, e, s2), _scale(e, h, s2), _noise(e, s2, r), _spikes(e, s2)
-    ]  # fmt: skip
+    texture = None if baseline is None else _texture(t, z, baseline)
+    if texture is None:
+        candidates = [
+            _bias(e, s2), _drift(t, e, s2), _scale(e, h, s2), _noise(e, s2, r), _spikes(e, s2)
+        ]  # fmt: skip
+    elif texture.spike_size is not None:
+        return FailureName("spikes", texture.spike_size)
+    elif texture.rough:
+        return FailureName("noise", baseline.factor(texture.log_ratio, r))
+    else:  # the residual names an offset or a gain; the roughness weighs a gain against them
+        candidates = [
+            _unscaled(_bias(e, s2), texture), _unscaled(_drift(t, e, s2), texture),
+            _scale_of_roughness(e, h, s2, texture),
+        ]  # fmt: skip
     # a ramp the prediction's own error could make is no drift: h's error (variance s2 - R)
     # settles over the window after a declaration, by up to a few of its sigmas
     prediction_sigma = math.sqrt(max(float(np.mean(s2)) - r, 0.0))
@@ -181,6 +241,130 @@ def _roughness_factor(t: np.ndarray, z: np.ndarray, r: float) -> float | None:
     return math.sqrt(max(float(np.mean(second**2)) / (6.0 * r), 1.0))
 
 
+@dataclass(frozen=True)
+class Roughness:
+    """How rough a channel's readings are: the robust sigma of their second differences.
+
+    ``sigma`` is the median absolute second difference over 0.6745 (the normal's), in the
+    channel's unit, read from ``count`` second differences, of which ``outliers`` lie beyond
+    :data:`SPIKE_SIGMAS` of it. A healthy sensor's is its noise's ``sqrt(6 R)`` plus what the
+    air adds (on z in moderate turbulence about ten times that); a bias, a drift or a spike
+    train keeps it (a median ignores a few spikes), a gain scales it and a noise widens it.
+    """
+
+    sigma: float
+    count: int
+    outliers: int
+
+    def factor(self, log_ratio: float, r: float) -> float:
+        """The noise factor that widens this roughness by ``exp(log_ratio)`` (at least 1).
+
+        A noise of factor ``k`` adds ``6 (k^2 - 1) R`` to the second differences' variance.
+        """
+        added = self.sigma**2 * (math.exp(2.0 * log_ratio) - 1.0)
+        return math.sqrt(max(1.0 + added / (6.0 * r), 1.0))
+
+
+@dataclass(frozen=True)
+class _Texture:
+    """Readings' roughness against the channel's before the failure.
+
+    ``log_ratio`` is ``ln`` of their robust sigmas' ratio and ``sigma`` its sampling sigma;
+    ``rough``: the ratio beyond what that spread explains at :data:`ZERO_QUANTILE`;
+    ``spike_size``: the spikes' size where more second differences lie beyond
+    :data:`SPIKE_SIGMAS` than the healthy channel's rate of them explains (None: no spikes).
+    """
+
+    log_ratio: float
+    sigma: float
+    rough: bool
+    spike_size: float | None
+
+
+def _second_differences(t: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """``z(k) - 2 z(k-1) + z(k-2)`` over evenly spaced triplets (a sample left out breaks one)."""
+    dt = np.diff(t)
+    even = np.isclose(dt[1:], dt[:-1], rtol=1e-3)
+    return (z[2:] - 2.0 * z[1:-1] + z[:-2])[even]
+
+
+def roughness(t_s: np.ndarray, z: np.ndarray) -> Roughness | None:
+    """The readings' :class:`Roughness` (None: under 3 second differences, or no spread)."""
+    t, z = np.asarray(t_s, dtype=float), np.asarray(z, dtype=float)
+    second = _second_differences(t, z) if t.size >= 5 else np.empty(0)
+    if second.size < 3:
+        return None
+    sigma = float(np.median(np.abs(second))) / 0.6745
+    if sigma <= 0.0:
+        return None
+    return Roughness(sigma, int(second.size), int(np.sum(np.abs(second) > SPIKE_SIGMAS * sigma)))
+
+
+def _texture(t: np.ndarray, z: np.ndarray, baseline: Roughness) -> _Texture | None:
+    """The readings' :class:`_Texture` against ``baseline`` (None: they have no roughness).
+
+    The ratio's sigma is the two robust sigmas' sampling spread (:data:`_MAD_LOG_VARIANCE`
+    over the effective count of each). A spike of size ``A`` puts ``A, -2A, A`` in the second
+    differences; the count beyond :data:`SPIKE_SIGMAS` is tested against a Poisson count at
+    the healthy channel's rate (half an outlier added, so that a baseline without one does
+    not call every outlier a spike), and the spikes' size is half the median peak.
+    """
+    now = roughness(t, z)
+    if now is None:
+        return None
+    log_ratio = math.log(now.sigma / baseline.sigma)
+    sigma = math.sqrt(
+        _MAD_LOG_VARIANCE / _SECOND_DIFFERENCE_DOF * (1.0 / now.count + 1.0 / baseline.count)
+    )
+    second = _second_differences(t, z)
+    threshold = SPIKE_SIGMAS * max(now.sigma, baseline.sigma)
+    beyond = np.abs(second) > threshold
+    expected = (baseline.outliers + 0.5) * second.size / baseline.count
+    spike_size = None
+    count = int(np.sum(beyond))
+    if count and poisson.sf(count - 1, expected) < 1.0 - ZERO_QUANTILE:
+        runs = np.split(np.abs(second), np.flatnonzero(np.diff(beyond)) + 1)
+        spike_size = 0.5 * float(np.median([np.max(run) for run in runs if run[0] > threshold]))
+    rough = log_ratio > norm.ppf(ZERO_QUANTILE) * sigma
+    return _Texture(log_ratio, sigma, rough, spike_size)
+
+
+def _unscaled(
+    fit: tuple[float, int, str, float], texture: _Texture
+) -> tuple[float, int, str, float]:
+    """A bias's or a drift's fit with the log-likelihood of the roughness it keeps (ratio 1)."""
+    return fit[0] - 0.5 * (texture.log_ratio / texture.sigma) ** 2, fit[1], fit[2], fit[3]
+
+
+def _scale_of_roughness(
+    e: np.ndarray, h: np.ndarray, s2: np.ndarray, texture: _Texture
+) -> tuple[float, int, str, float]:
+    """A gain fitted to the residual ``(g - 1) h`` and to the roughness ratio ``|g|`` at once.
+
+    Where the channel holds still the residual cannot tell a gain from a bias, and its
+    roughness, scaled by ``|g|``, still can.
+    """
+
+    def log_likelihood(g: float) -> float:
+        rough = -0.5 * ((texture.log_ratio - math.log(max(abs(g), 1e-3))) / texture.sigma) ** 2
+        return _gaussian(e, (g - 1.0) * h, s2) + rough
+
+    residual_only = _scale(e, h, s2)[3]
+    fit = minimize_scalar(lambda g: -log_likelihood(g), bounds=(1e-3, 10.0), method="bounded")
+    gain = max((residual_only, float(fit.x)), key=log_likelihood)
+    return log_likelihood(gain), 1, "scale", gain
+
+
+def _noise_factor(
+    t: np.ndarray, z: np.ndarray, r: float, baseline: Roughness | None
+) -> float | None:
+    """A noise's factor from the readings' roughness: against ``baseline`` where there is one."""
+    if baseline is None:
+        return _roughness_factor(t, z, r)
+    texture = _texture(t, z, baseline)
+    return None if texture is None else baseline.factor(texture.log_ratio, r)
+
+
 def _gaussian(e: np.ndarray, mean: np.ndarray | float, var: np.ndarray) -> float:
     return float(-0.5 * np.sum((e - mean) ** 2 / var + np.log(2.0 * np.pi * var)))
 
@@ -211,6 +395,7 @@ def second_look(
     s2: np.ndarray,
     noise_sigma: float,
     band: float | None = None,
+    baseline: Roughness | None = None,
 ) -> FailureName:
     """A bias, a gain or a drift: what the readings since a declaration show over seconds.
 
@@ -224,21 +409,32 @@ def second_look(
     residual); its slope over seconds is the drift's rate, where the first second's also
     holds the re-based prediction's settling. Where the best of the three stays within
     ``band`` (:func:`classify_failure`'s) the seconds show no bias, gain or drift, and every
-    kind is weighed again (a spike train whose first second had no spike).
+    kind is weighed again (a spike train whose first second had no spike). With the channel's
+    roughness before the failure (``baseline``), seconds that show spikes or a noise in the
+    readings themselves are named by :func:`classify_failure`, and a gain also explains the
+    roughness it scales.
     """
     t, z, h, s2 = (np.asarray(a, dtype=float) for a in (t_s, z, h, s2))
     n = z.size
     if n < 3:
         raise ValueError(f"second_look: expected at least 3 samples, got {n}")
     e = z - h
+    texture = None if baseline is None else _texture(t, z, baseline)
+    if texture is not None and (texture.rough or texture.spike_size is not None):
+        return classify_failure(t, z, h, s2, noise_sigma, baseline=baseline)
     candidates = [_bias(e, s2), _scale(e, h, s2)]
     fitted, mean, slope = _line(t, e, s2)
     prediction_sigma = math.sqrt(max(float(np.mean(s2)) - noise_sigma**2, 0.0))
     if abs(slope) * float(t[-1] - t[0]) > DRIFT_SIGMAS * prediction_sigma and mean * slope > 0.0:
         candidates.append((_gaussian(e, fitted, s2), 2, "drift", slope))
+    if texture is not None:
+        candidates = [
+            _scale_of_roughness(e, h, s2, texture) if c[2] == "scale" else _unscaled(c, texture)
+            for c in candidates
+        ]
     best = max(candidates, key=lambda c: c[0] - 0.5 * c[1] * math.log(n))
     if band is not None and _deviation(t, e, h, s2, best) <= band:
-        return classify_failure(t, z, h, s2, noise_sigma)
+        return classify_failure(t, z, h, s2, noise_sigma, baseline=baseline)
     return FailureName(best[2], best[3])
 
 
@@ -283,8 +479,8 @@ class FaultNamer:
     """Gathers each step's readings and predictions; names each declaration once its window is in.
 
     Every declared channel is named on its own (a second failure declared within the first's
-    window does not lose the first's name). A failure named a bias or a drift keeps being
-    gathered until ``second_look_s`` after its declaration, and is named again where
+    window does not lose the first's name). A failure named a bias, a drift or a gain keeps
+    being gathered until ``second_look_s`` after its declaration, and is named again where
     :func:`second_look` names it otherwise (a drift: again, with the rate of the seconds); a
     noise is named again with its factor over those seconds.
 
@@ -295,7 +491,7 @@ class FaultNamer:
     window_s : float
         How long after a declaration to gather (:data:`NAMING_WINDOW_S`).
     second_look_s : float
-        When a bias, a drift or a noise is looked at again (:data:`SECOND_LOOK_S`); at most
+        When a bias, a drift, a gain or a noise is looked at again (:data:`SECOND_LOOK_S`); at most
         ``window_s``: never.
     bands : ndarray, shape (6,), optional
         What a healthy channel may read off the truth (``DETECTABLE_SIGMAS`` band sigmas of
@@ -315,6 +511,8 @@ class FaultNamer:
         self.window_s = window_s
         self.second_look_s = second_look_s
         self._pending: dict[int, tuple[int, float]] = {}  # channel -> mode slot, declared at
+        self._recent: deque[tuple[float, np.ndarray]] = deque()  # (t, readings) of BASELINE_S
+        self._baselines: dict[int, Roughness | None] = {}  # channel -> roughness before it
         self._samples: dict[int, list[tuple[float, float, float, float]]] = {}
         self._first: dict[int, FailureName] = {}  # channel -> first name, waiting for a second look
 
@@ -323,10 +521,22 @@ class FaultNamer:
         """Whether a declaration waits to be named (else :meth:`observe` has nothing to do)."""
         return bool(self._pending)
 
+    def record(self, t_s: float, imu: np.ndarray) -> None:
+        """Keep this step's readings for the roughness of a channel declared later."""
+        self._recent.append((t_s, np.array(imu, dtype=float)))
+        while self._recent and t_s - self._recent[0][0] > BASELINE_S + BASELINE_GUARD_S:
+            self._recent.popleft()
+
     def declared(self, mode_index: int, channel: int, t_s: float) -> None:
-        """Start gathering for mode ``mode_index``'s failed ``channel``, declared at ``t_s``."""
+        """Start gathering for mode ``mode_index``'s failed ``channel``, declared at ``t_s``.
+
+        The channel's roughness before the failure is read from the readings :meth:`record`
+        kept, up to :data:`BASELINE_GUARD_S` before the declaration.
+        """
         self._pending[channel] = (mode_index, t_s)
         self._samples[channel] = []
+        before = [(t, v[channel]) for t, v in self._recent if t <= t_s - BASELINE_GUARD_S]
+        self._baselines[channel] = roughness(*zip(*before, strict=True)) if before else None
 
     def looking(self, channel: int) -> bool:
         """Whether ``channel``'s failure waits to be named, or to be looked at again."""
@@ -338,6 +548,7 @@ class FaultNamer:
             self._pending.pop(c, None)
             self._samples.pop(c, None)
             self._first.pop(c, None)
+            self._baselines.pop(c, None)
 
     def observe(
         self, t_s: float, imu: np.ndarray, innovations: np.ndarray, variances: np.ndarray
@@ -363,28 +574,29 @@ class FaultNamer:
                 continue
             t, zs, hs, s2 = (np.array(c) for c in zip(*samples, strict=True))
             sigma = float(self.noise_sigmas[i])
+            baseline = self._baselines.get(i)
             if looking_again:
                 first = self._first[i]
                 self.cancel(i)
                 if first.kind == UNSEEN:  # named now, by the seconds, whatever they show
-                    out.append((i, classify_failure(t, zs, hs, s2, sigma)))
+                    out.append((i, classify_failure(t, zs, hs, s2, sigma, baseline=baseline)))
                     continue
                 if first.kind == "noise":  # its factor over seconds, not one second's
-                    factor = _roughness_factor(t, zs, sigma**2)
+                    factor = _noise_factor(t, zs, sigma**2, baseline)
                     if factor is not None:
                         out.append((i, FailureName("noise", factor)))
                     continue
                 band = None if self.bands is None else float(self.bands[i])
-                again = second_look(t, zs, hs, s2, sigma, band)
+                again = second_look(t, zs, hs, s2, sigma, band, baseline)
                 if again.kind != first.kind or again.kind == "drift":
                     out.append((i, again))
                 continue
             looks_again = self.second_look_s > self.window_s
             band = float(self.bands[i]) if looks_again and self.bands is not None else None
-            name = classify_failure(t, zs, hs, s2, sigma, band)
+            name = classify_failure(t, zs, hs, s2, sigma, band, baseline)
             if name.kind != UNSEEN:
                 out.append((i, name))
-            if name.kind in ("bias", "drift", "noise", UNSEEN) and looks_again:
+            if name.kind in ("bias", "drift", "scale", "noise", UNSEEN) and looks_again:
                 self._first[i] = name
             else:
                 self.cancel(i)

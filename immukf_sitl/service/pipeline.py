@@ -529,6 +529,7 @@ class EstimatorPipeline:
         the re-basing detector moves the bank onto the new declared set.
         """
         assert self.estimator is not None and self.detector is not None
+        self._namer.record(t_s, imu)
         innovations = self.estimator.channel_innovations(est)
         sigmas = self.config.sensors.imu.sigmas * math.sqrt(self._imu_var_scale)
         bank = est.filter
@@ -569,8 +570,8 @@ class EstimatorPipeline:
     def _hold_named_errors(self) -> None:
         """Hold each declared channel's drift rate and gain where its last name knows them.
 
-        Only a name that is not to be looked at again: a bias, a drift or a noise named in the
-        first second is provisional (a drift or a gain slow to show passes for a bias then),
+        Only a name that is not to be looked at again: a bias, a drift, a gain or a noise named
+        in the first second is provisional (a drift or a gain slow to show passes for a bias then),
         and held at it, the second look no longer saw what the name missed.
         """
         if not isinstance(self.detector, DeclaredSetDetector):
