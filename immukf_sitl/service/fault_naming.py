@@ -169,10 +169,11 @@ def classify_failure(
         bias); a bias, drift, gain or spike train that keeps the residual's fitted deviation
         within it shows no failure, and is named :data:`UNSEEN`. None: always a kind.
     baseline : Roughness, optional
-        The channel's roughness before the failure (:func:`roughness`). Each kind then also
-        explains how rough the readings are against it: a bias, a drift or a spike train leaves
-        it, a gain ``g`` scales it by ``|g|`` and a noise widens it, and the noise's factor is
-        the one that widening says. None: the residual alone names the failure.
+        The channel's roughness before the failure (:func:`roughness`). The readings' own
+        texture then names spikes and a noise first (their outliers, their widening of it:
+        the factor is the one that widening says), and a gain ``g`` also explains the
+        roughness it scales by ``|g|``, which a bias or a drift leaves. None: the residual
+        alone names the failure.
     """
     t, z, h, s2 = (np.asarray(a, dtype=float) for a in (t_s, z, h, s2))
     n = z.size
@@ -229,13 +230,8 @@ def _deviation(
 
 
 def _roughness_factor(t: np.ndarray, z: np.ndarray, r: float) -> float | None:
-    """The noise factor ``k`` from the readings' second differences (None: under 3 of them).
-
-    Only triplets of evenly spaced samples count (a sample left out breaks the difference).
-    """
-    dt = np.diff(t)
-    even = np.isclose(dt[1:], dt[:-1], rtol=1e-3)
-    second = (z[2:] - 2.0 * z[1:-1] + z[:-2])[even]
+    """The noise factor ``k`` from the readings' second differences (None: under 3 of them)."""
+    second = _second_differences(t, z)
     if second.size < 3:
         return None
     return math.sqrt(max(float(np.mean(second**2)) / (6.0 * r), 1.0))
