@@ -30,6 +30,24 @@ def _kernel_attaches_stamps() -> bool:
     return any(kind == wire._SO_TIMESTAMPNS for _, kind, _ in ancillary)
 
 
+def _wait_for_arrival_stamps(reader: DatagramReader, sender: socket.socket) -> None:
+    """Wait until the kernel stamps datagrams as they arrive rather than as they are read.
+
+    Linux switches arrival stamping on lazily (a deferred static key) when the first socket of
+    the machine asks for it; until then a stamped socket's datagram is stamped at its read. The
+    wait sends probes until one is stamped at least 10 ms before its read, for at most 2 s.
+    """
+    deadline_s = time.monotonic() + 2.0
+    while time.monotonic() < deadline_s:
+        sender.sendto(b"probe", reader.sock.getsockname())
+        time.sleep(0.02)
+        read_ns = time.time_ns()
+        datagram = reader.read()
+        if datagram is not None and read_ns - datagram[1] >= 10_000_000:
+            return
+    pytest.fail("no datagram was stamped at its arrival within 2 s")
+
+
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="SO_TIMESTAMPNS is Linux's")
 def test_the_arrival_stamp_includes_the_time_a_datagram_waited_in_the_socket() -> None:
     if not _kernel_attaches_stamps():
@@ -38,6 +56,7 @@ def test_the_arrival_stamp_includes_the_time_a_datagram_waited_in_the_socket() -
     reader = DatagramReader(conn)
     assert reader.kernel_stamps
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sender:
+        _wait_for_arrival_stamps(reader, sender)
         sender.sendto(b"\xfdabc", conn.port.getsockname())
         sent_ns = time.time_ns()
         time.sleep(0.05)  # the datagram waits in the queue

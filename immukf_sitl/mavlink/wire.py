@@ -129,7 +129,9 @@ class DatagramReader:
     stamp is the time of the read (``kernel_stamps`` is then False). Some kernels (sandboxes such
     as gVisor) accept the option and attach no stamp: the first datagram that arrives without
     one (its ancillary data not cut short) turns ``kernel_stamps`` False, and every datagram from
-    then on is stamped at its read, so one report never mixes the two.
+    then on is stamped at its read, so one report never mixes the two. Linux switches arrival
+    stamping on lazily when the machine's first socket asks for it: the first datagrams after
+    the reader opens may carry the time of their read.
 
     Parameters
     ----------
