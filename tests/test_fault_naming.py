@@ -227,9 +227,12 @@ def test_a_gain_on_a_channel_that_held_still_is_named_a_gain_once_it_moves():
         assert again.size == pytest.approx(0.45, rel=0.2), (seed, again)
 
 
-def _named(channel, t, z, h, s2, bands=None):
+def _named(channel, t, z, h, s2, bands=None, last_look_s=0.0):
     """Each ``(step, name)`` a namer gives for readings ``z`` of ``channel``, declared at t[0]."""
-    namer = FaultNamer(np.array([0.0245] * 3 + [SIGMA] * 3), second_look_s=5.0, bands=bands)
+    namer = FaultNamer(
+        np.array([0.0245] * 3 + [SIGMA] * 3), second_look_s=5.0, bands=bands,
+        last_look_s=last_look_s,
+    )  # fmt: skip
     namer.declared(0, channel, t[0])
     nu = np.zeros((7, 6))
     var = np.full((7, 6), s2[0])
@@ -241,6 +244,23 @@ def _named(channel, t, z, h, s2, bands=None):
         got += [(k, name) for c, name in namer.observe(t[k], imu, nu, var) if c == channel]
     assert not namer.pending
     return got
+
+
+def test_a_drift_too_slow_for_five_seconds_is_named_at_the_last_look():
+    # 0.01 rad/s/s moves the channel by 0.05 rad/s over the second look's 5 s, under the drift
+    # rule's 3 prediction sigmas (0.06): a bias then. Over 15 s it has moved 0.15 and the last
+    # look names the drift at its rate; a bias whose prediction creeps toward its reading
+    # (time constant 3 s, the pull that only shrinks a residual) is a bias at its second look
+    # and not renamed at the last
+    for seed in range(3):
+        rng = np.random.default_rng(110 + seed)
+        t, truth, h, healthy, s2 = _slow_flight(rng, 16.0)
+        drift = _named(3, t, healthy + 0.01 * (t - 27.0), h, s2, last_look_s=15.0)
+        assert [(k, n.kind) for k, n in drift] == [(100, "bias"), (1500, "drift")], seed
+        assert drift[-1][1].size == pytest.approx(0.01, rel=0.15), (seed, drift[-1])
+        pulled = h + 0.3 * (1.0 - np.exp(-(t - t[0]) / 3.0))
+        bias = _named(3, t, healthy + 0.3, pulled, s2, last_look_s=15.0)
+        assert bias[-1][0] <= 500 and bias[-1][1].kind == "bias", (seed, bias)
 
 
 def test_the_namer_names_a_slow_drift_twice_and_a_bias_once():
@@ -259,7 +279,7 @@ def test_a_name_is_final_once_nothing_is_to_be_looked_at_again():
     rng = np.random.default_rng(6)
     t, truth, h, healthy, s2 = _slow_flight(rng, 6.0)
     for z, kind, final_at in ((healthy + 0.3, "bias", 500), (np.full(t.size, 0.21), "stuck", 100)):
-        namer = FaultNamer(np.array([0.0245] * 3 + [SIGMA] * 3), second_look_s=5.0)
+        namer = FaultNamer(np.array([0.0245] * 3 + [SIGMA] * 3), second_look_s=5.0, last_look_s=0.0)
         namer.declared(0, 3, t[0])
         nu = np.zeros((7, 6))
         var = np.full((7, 6), s2[0])

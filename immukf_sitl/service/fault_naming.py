@@ -111,6 +111,9 @@ DRIFT_SIGMAS = 3.0
 #: how long after a declaration a failure named a bias, a drift, a gain or a noise is looked at
 #: again (s)
 SECOND_LOOK_S = 5.0
+#: how long after a declaration a failure its second look still names a bias is looked at a
+#: last time (s): a slow drift moves its channel by its prediction's sigmas only over seconds
+LAST_LOOK_S = 15.0
 #: the name of a window whose best explanation stays within what a healthy sensor reads (the
 #: first second of a spike train that has not spiked again, a gain on a channel holding still):
 #: never published; the failure is named over the seconds of the second look instead
@@ -493,6 +496,9 @@ class FaultNamer:
         What a healthy channel may read off the truth (``DETECTABLE_SIGMAS`` band sigmas of
         the spec sheet). A first second whose best name stays within it is named over the
         second look's seconds instead (None: always named at the first second).
+    last_look_s : float
+        When a failure its second look names a bias is looked at a last time
+        (:data:`LAST_LOOK_S`); at most ``second_look_s``: never.
     """
 
     def __init__(
@@ -501,16 +507,19 @@ class FaultNamer:
         window_s: float = NAMING_WINDOW_S,
         second_look_s: float = SECOND_LOOK_S,
         bands: np.ndarray | None = None,
+        last_look_s: float = LAST_LOOK_S,
     ) -> None:
         self.noise_sigmas = np.asarray(noise_sigmas, dtype=float)
         self.bands = None if bands is None else np.asarray(bands, dtype=float)
         self.window_s = window_s
         self.second_look_s = second_look_s
+        self.last_look_s = last_look_s
         self._pending: dict[int, tuple[int, float]] = {}  # channel -> mode slot, declared at
         self._recent: deque[tuple[float, np.ndarray]] = deque()  # (t, readings) of BASELINE_S
         self._baselines: dict[int, Roughness | None] = {}  # channel -> roughness before it
         self._samples: dict[int, list[tuple[float, float, float, float]]] = {}
         self._first: dict[int, FailureName] = {}  # channel -> first name, waiting for a second look
+        self._last: dict[int, FailureName] = {}  # channel -> a bias, waiting for the last look
 
     @property
     def pending(self) -> bool:
@@ -535,8 +544,12 @@ class FaultNamer:
         self._baselines[channel] = roughness(*zip(*before, strict=True)) if before else None
 
     def looking(self, channel: int) -> bool:
-        """Whether ``channel``'s failure waits to be named, or to be looked at again."""
-        return channel in self._pending
+        """Whether ``channel``'s failure waits to be named, or to be looked at again.
+
+        A bias waiting for its last look is not: its name is final unless that look finds a
+        drift or a gain, which it then names anew.
+        """
+        return channel in self._pending and channel not in self._last
 
     def cancel(self, channel: int | None = None) -> None:
         """Forget a pending declaration (``channel``; None: all of them)."""
@@ -544,6 +557,7 @@ class FaultNamer:
             self._pending.pop(c, None)
             self._samples.pop(c, None)
             self._first.pop(c, None)
+            self._last.pop(c, None)
             self._baselines.pop(c, None)
 
     def observe(
@@ -564,16 +578,27 @@ class FaultNamer:
                 continue
             samples = self._samples[i]
             samples.append((t_s, z, h, s2))
-            looking_again = i in self._first
-            due = self.second_look_s if looking_again else self.window_s
+            looking_again, looking_last = i in self._first, i in self._last
+            due = (
+                self.last_look_s if looking_last
+                else self.second_look_s if looking_again else self.window_s
+            )  # fmt: skip
             if t_s - since < due - 1e-9 or len(samples) < 3:
                 continue
             t, zs, hs, s2 = (np.array(c) for c in zip(*samples, strict=True))
             sigma = float(self.noise_sigmas[i])
             baseline = self._baselines.get(i)
-            if looking_again:
-                first = self._first[i]
+            band = None if self.bands is None else float(self.bands[i])
+            if looking_last:
                 self.cancel(i)
+                last = second_look(t, zs, hs, s2, sigma, band, baseline)
+                if last.kind != "bias":
+                    out.append((i, last))
+                continue
+            if looking_again:
+                first = self._first.pop(i)
+                if first.kind in (UNSEEN, "noise"):
+                    self.cancel(i)
                 if first.kind == UNSEEN:  # named now, by the seconds, whatever they show
                     out.append((i, classify_failure(t, zs, hs, s2, sigma, baseline=baseline)))
                     continue
@@ -582,10 +607,13 @@ class FaultNamer:
                     if factor is not None:
                         out.append((i, FailureName("noise", factor)))
                     continue
-                band = None if self.bands is None else float(self.bands[i])
                 again = second_look(t, zs, hs, s2, sigma, band, baseline)
                 if again.kind != first.kind or again.kind == "drift":
                     out.append((i, again))
+                if again.kind == "bias" and self.last_look_s > self.second_look_s:
+                    self._last[i] = again
+                else:
+                    self.cancel(i)
                 continue
             looks_again = self.second_look_s > self.window_s
             band = float(self.bands[i]) if looks_again and self.bands is not None else None
