@@ -198,10 +198,12 @@ def classify_failure(
     elif texture.rough:
         return FailureName("noise", baseline.factor(texture.log_ratio, r))
     else:  # the residual names an offset or a gain; the roughness weighs a gain against them
+        loose = _LoosePrediction(h, s2, r)
         candidates = [
-            _unscaled(_bias(e, s2), texture), _unscaled(_drift(t, e, s2), texture),
-            _scale_of_roughness(e, h, s2, texture),
-        ]  # fmt: skip
+            _unscaled(loose.bias(e), texture),
+            _unscaled(loose.drift(t, e)[0], texture),
+            _scale_of_roughness(e, h, texture, loose),
+        ]
     # a ramp the prediction's own error could make is no drift: h's error (variance s2 - R)
     # settles over the window after a declaration, by up to a few of its sigmas
     prediction_sigma = math.sqrt(max(float(np.mean(s2)) - r, 0.0))
@@ -336,19 +338,21 @@ def _unscaled(
 
 
 def _scale_of_roughness(
-    e: np.ndarray, h: np.ndarray, s2: np.ndarray, texture: _Texture
+    e: np.ndarray, h: np.ndarray, texture: _Texture, loose: _LoosePrediction
 ) -> tuple[float, int, str, float]:
     """A gain fitted to the residual ``(g - 1) h`` and to the roughness ratio ``|g|`` at once.
 
     Where the channel holds still the residual cannot tell a gain from a bias, and its
-    roughness, scaled by ``|g|``, still can.
+    roughness, scaled by ``|g|``, still can. The residual is read with the prediction's own
+    error over the window (:class:`_LoosePrediction`): its offset and its slope on ``h`` say
+    ``g`` only beyond what that error allows.
     """
 
     def log_likelihood(g: float) -> float:
         rough = -0.5 * ((texture.log_ratio - math.log(max(abs(g), 1e-3))) / texture.sigma) ** 2
-        return _gaussian(e, (g - 1.0) * h, s2) + rough
+        return loose.log_likelihood(e - (g - 1.0) * h) + rough
 
-    residual_only = _scale(e, h, s2)[3]
+    residual_only = 1.0 + float(loose.fit(e, h[:, None])[1][0])
     fit = minimize_scalar(lambda g: -log_likelihood(g), bounds=(1e-3, 10.0), method="bounded")
     gain = max((residual_only, float(fit.x)), key=log_likelihood)
     return log_likelihood(gain), 1, "scale", gain
@@ -387,6 +391,63 @@ def _drift(t: np.ndarray, e: np.ndarray, s2: np.ndarray) -> tuple[float, int, st
     return _gaussian(e, fitted, s2), 2, "drift", slope
 
 
+class _LoosePrediction:
+    """The residual's likelihood with the re-based prediction's own error over the window.
+
+    The prediction ``h`` of a declared channel has an error of variance ``s2 - R`` by its own
+    account, and over a window that error is partly shared by its samples: an offset (the
+    re-based filter settling) and a response of its own to the true value's fluctuation (a
+    slope on ``f = h - mean(h)``; z in turbulence follows its channel loosely). Either, drawn
+    from that budget (``a ~ N(0, s2 - R)``, ``c ~ N(0, (s2 - R) / var(h))``) and integrated
+    out, gives the residual the covariance ``S + U D U'`` (``U = [1, f]``), whose inverse and
+    determinant the push-through identity gives from 2 x 2 matrices. An offset or a slope
+    within that budget is then no evidence of a bias against a gain: the offset the gain makes
+    through the mean of ``h`` and the roughness tell them apart, and a slope beyond the budget
+    (a gyro's gain in still air, closely predicted) still names a gain.
+    """
+
+    def __init__(self, h: np.ndarray, s2: np.ndarray, r: float) -> None:
+        self._w = 1.0 / np.sqrt(s2)
+        budget = max(float(np.mean(s2)) - r, 0.0)
+        spread = float(np.var(h))
+        self._d = np.array([budget, budget / spread if spread > 0.0 else 0.0])
+        self._u = np.column_stack([np.ones_like(h), h - float(np.mean(h))]) * self._w[:, None]
+        gram = self._u.T @ self._u
+        self._m = np.linalg.inv(np.eye(2) + self._d[:, None] * gram)  # (I + D U'U)^-1: the
+        # push-through identity (I + U D U')^-1 = I - U (I + D U'U)^-1 D U'
+        self._constant = math.log(np.linalg.det(np.eye(2) + self._d[:, None] * gram)) + float(
+            np.sum(np.log(2.0 * np.pi * s2))
+        )
+
+    def _inverse(self, v: np.ndarray) -> np.ndarray:
+        """``(I + U D U')^-1 v`` for whitened ``v`` (a vector or the columns of a matrix)."""
+        projected = self._u.T @ v
+        scaled = self._d.reshape((2,) + (1,) * (projected.ndim - 1)) * projected  # D U' v
+        return v - self._u @ (self._m @ scaled)
+
+    def log_likelihood(self, residual: np.ndarray) -> float:
+        """``ln N(residual; 0, S + U D U')``."""
+        y = residual * self._w
+        return -0.5 * (float(y @ self._inverse(y)) + self._constant)
+
+    def fit(self, e: np.ndarray, columns: np.ndarray) -> tuple[float, np.ndarray]:
+        """The mean ``columns @ beta`` fitted to ``e`` under that covariance, its likelihood."""
+        x, y = columns * self._w[:, None], e * self._w
+        ix = self._inverse(x)
+        beta = np.linalg.lstsq(x.T @ ix, ix.T @ y, rcond=None)[0]
+        return self.log_likelihood(e - columns @ beta), beta
+
+    def bias(self, e: np.ndarray) -> tuple[float, int, str, float]:
+        """A bias's fit."""
+        log_likelihood, beta = self.fit(e, np.ones((e.size, 1)))
+        return log_likelihood, 1, "bias", float(beta[0])
+
+    def drift(self, t: np.ndarray, e: np.ndarray) -> tuple[tuple[float, int, str, float], float]:
+        """A drift's fit, and its line's value at the mean time."""
+        log_likelihood, beta = self.fit(e, np.column_stack([np.ones_like(t), t - t.mean()]))
+        return (log_likelihood, 2, "drift", float(beta[1])), float(beta[0])
+
+
 def second_look(
     t_s: np.ndarray,
     z: np.ndarray,
@@ -421,16 +482,21 @@ def second_look(
     texture = None if baseline is None else _texture(t, z, baseline)
     if texture is not None and (texture.rough or texture.spike_size is not None):
         return classify_failure(t, z, h, s2, noise_sigma, baseline=baseline)
-    candidates = [_bias(e, s2), _scale(e, h, s2)]
-    fitted, mean, slope = _line(t, e, s2)
     prediction_sigma = math.sqrt(max(float(np.mean(s2)) - noise_sigma**2, 0.0))
-    if abs(slope) * float(t[-1] - t[0]) > DRIFT_SIGMAS * prediction_sigma and mean * slope > 0.0:
-        candidates.append((_gaussian(e, fitted, s2), 2, "drift", slope))
-    if texture is not None:
+    if texture is None:
+        candidates = [_bias(e, s2), _scale(e, h, s2)]
+        fitted, mean, slope = _line(t, e, s2)
+        drift = (_gaussian(e, fitted, s2), 2, "drift", slope)
+    else:
+        loose_prediction = _LoosePrediction(h, s2, noise_sigma**2)
         candidates = [
-            _scale_of_roughness(e, h, s2, texture) if c[2] == "scale" else _unscaled(c, texture)
-            for c in candidates
+            _unscaled(loose_prediction.bias(e), texture),
+            _scale_of_roughness(e, h, texture, loose_prediction),
         ]
+        loose, mean = loose_prediction.drift(t, e)
+        drift, slope = _unscaled(loose, texture), loose[3]
+    if abs(slope) * float(t[-1] - t[0]) > DRIFT_SIGMAS * prediction_sigma and mean * slope > 0.0:
+        candidates.append(drift)
     best = max(candidates, key=lambda c: c[0] - 0.5 * c[1] * math.log(n))
     if band is not None and _deviation(t, e, h, s2, best) <= band:
         return classify_failure(t, z, h, s2, noise_sigma, baseline=baseline)
