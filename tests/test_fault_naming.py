@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
-from scipy.stats import norm
+from scipy.stats import multivariate_normal, norm
 
 from immukf_sitl.service.fault_naming import (
     FaultNamer,
+    _LoosePrediction,
     _spikes,
     _texture,
     classify_failure,
@@ -476,3 +479,86 @@ def test_the_namer_reads_the_roughness_before_the_declaration_from_what_it_recor
     )  # fmt: skip
     assert [(c, n.kind) for c, n in names] == [(3, "noise")]
     assert names[0][1].size == pytest.approx(expected.size, rel=1e-9)
+
+
+# -- the re-based prediction's own error over the window ---------------------------------------
+
+
+def test_the_loose_prediction_is_the_normal_with_its_offset_and_slope_integrated_out():
+    # against a dense computation: the covariance S + (s2 - R) (1 1' + f f' / var(h)) built
+    # whole, scipy's normal density of it, and the generalised least-squares line by inversion
+    rng = np.random.default_rng(95)
+    n, r = 80, 0.3
+    h = 3.0 + 2.0 * rng.standard_normal(n)
+    s2 = rng.uniform(0.5, 2.0, n)
+    t = 0.01 * np.arange(n)
+    e = 1.0 - 0.4 * (t - t.mean()) + rng.standard_normal(n)
+    f = h - h.mean()
+    budget = s2.mean() - r
+    cov = np.diag(s2) + budget * (np.ones((n, n)) + np.outer(f, f) / np.var(h))
+    loose = _LoosePrediction(h, s2, r)
+    assert loose.log_likelihood(e) == pytest.approx(
+        multivariate_normal(np.zeros(n), cov).logpdf(e), rel=1e-10
+    )
+    columns = np.column_stack([np.ones(n), t - t.mean()])
+    inverse = np.linalg.inv(cov)
+    beta = np.linalg.solve(columns.T @ inverse @ columns, columns.T @ inverse @ e)
+    log_likelihood, fitted = loose.fit(e, columns)
+    assert fitted == pytest.approx(beta, rel=1e-8)
+    assert log_likelihood == pytest.approx(
+        multivariate_normal(columns @ beta, cov).logpdf(e), rel=1e-10
+    )
+    (drift_ll, _, kind, rate), level = loose.drift(t, e)
+    assert (kind, rate, level, drift_ll) == ("drift", pytest.approx(beta[1]), pytest.approx(
+        beta[0]), pytest.approx(log_likelihood))  # fmt: skip
+
+
+#: Naming windows recorded in flight on the tuning draw (seed 19, first airframe, real-air model
+#: with untrusted modes): the declared channel's readings over the 11 s before its declaration
+#: (``before``, every 10 ms up to it) and, from 10 ms after it, the readings, the declared
+#: mode's prediction and its variance (``after``, columns z, h, s2), with ``meta`` [channel,
+#: noise sigma, band, injected size].
+NAMING_WINDOWS = Path(__file__).parent / "data" / "naming_windows.npz"
+
+
+@pytest.mark.parametrize(
+    ("window", "kind", "size_error"),
+    [
+        # a gain of 0.45 whose residual's slope on h is -0.19, not -0.55; its size comes from
+        # a roughness ratio of 0.53, read while the autopilot answered the re-based estimate
+        ("p_gain_moderate", "scale", 0.35),
+        ("z_bias_moderate", "bias", 0.2),  # -1.66; its slope on h, +0.21, is a gain of 1.17's
+        ("p_gain_calm", "scale", 0.2),  # 0.67
+        ("z_gain_light", "scale", 0.2),  # 0.40
+    ],
+)
+def test_recorded_failures_are_named_through_the_prediction_error_they_were_read_with(
+    window, kind, size_error
+):
+    # the windows of the tuning draw whose prediction followed the channel's fluctuation with
+    # a response and an offset of its own, within its variance: named by the namer as in
+    # flight, each gets its injected kind at its final look (the first two were named a drift
+    # and a gain by a namer that read the residual's offset and slope as exact)
+    data = np.load(NAMING_WINDOWS)
+    channel, sigma, band, size = data[f"{window}/meta"]
+    channel = int(channel)
+    before, after = data[f"{window}/before"].astype(float), data[f"{window}/after"].astype(float)
+    t0_s = 50.0
+    sigmas, bands = np.ones(6), np.ones(6)
+    sigmas[channel], bands[channel] = sigma, band
+    namer = FaultNamer(sigmas, bands=bands)
+    imu = np.zeros(6)
+    for k, reading in enumerate(before):
+        imu[channel] = reading
+        namer.record(t0_s - 0.01 * (before.size - 1 - k), imu)
+    namer.declared(channel + 1, channel, t0_s)
+    nu, var = np.zeros((7, 6)), np.ones((7, 6))
+    names = []
+    for k, (z, h, s2) in enumerate(after):
+        imu[channel] = z
+        nu[channel + 1, channel], var[channel + 1, channel] = z - h, s2
+        names += [name for _, name in namer.observe(t0_s + 0.01 * (k + 1), imu, nu, var)]
+        if not namer.pending:
+            break
+    assert names[-1].kind == kind, names
+    assert names[-1].size == pytest.approx(size, rel=size_error), names

@@ -39,7 +39,12 @@ scales it by ``|g|`` and a noise widens it:
 - otherwise bias, drift and gain by the residual's information criterion as above, each also
   scored on the ratio it predicts (1 for a bias or a drift, ``|g|`` for a gain, its sigma as
   above), which tells a gain from a bias where the channel holds still and the residual
-  cannot.
+  cannot. The residual is then read through the prediction's own error over the window
+  (:class:`_LoosePrediction`): the re-based prediction settles off by an offset and follows
+  the channel's fluctuation with a response of its own, each within its variance ``s2 - R``,
+  so neither names a gain or a bias by itself (on the tuning draw a bias of -1.66 m/s^2 on z
+  in moderate air had the residual slope on ``h`` of a gain of 1.17, and a p gain of 0.45 the
+  slope of one of 0.81).
 
 Without a record, a noise's factor is read from the readings' second differences alone, white
 noise of variance ``6 k^2 R`` (in turbulence the air's own roughness reads as a larger factor,
