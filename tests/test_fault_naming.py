@@ -453,6 +453,27 @@ def test_a_gain_on_a_channel_holding_still_is_told_from_a_bias_by_its_roughness(
         assert biased.kind == "bias", (seed, biased)
 
 
+@pytest.mark.parametrize("gain", [-1.0, 1.3, 2.0])
+def test_a_gain_above_one_or_a_reversed_axis_is_named_a_gain_not_a_noise(gain):
+    # a gain above 1 roughens the readings as a noise does (by g), and also puts (g - 1) h in
+    # the residual, which a noise does not: a range set wrong (2), a scale factor off (1.3) and
+    # a reversed axis (-1, its roughness kept) are gains within 5 %, at the first second and at
+    # the second look (a namer that took every rougher window for a noise named 2 and 1.3
+    # noises of factor 5-11)
+    for seed in range(5):
+        rng = np.random.default_rng(400 + seed)
+        baseline = _baseline(rng)
+        t, truth, healthy = _rough_air(rng, 5.0)
+        h = truth + PRED_SIGMA * rng.standard_normal(t.size)
+        s2 = np.full(t.size, S2[0])
+        z = gain * healthy
+        first = classify_failure(t[:N], z[:N], h[:N], s2[:N], SIGMA, baseline=baseline)
+        seconds = second_look(t, z, h, s2, SIGMA, baseline=baseline)
+        for named in (first, seconds):
+            assert named.kind == "scale", (seed, named)
+            assert named.size == pytest.approx(gain, rel=0.05), (seed, named)
+
+
 def test_the_namer_reads_the_roughness_before_the_declaration_from_what_it_recorded():
     # 10 s of rough air recorded, then a noise of factor 8 declared: the namer's name and
     # factor are classify_failure's with the baseline of those seconds, up to 1 s before

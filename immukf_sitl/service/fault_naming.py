@@ -35,7 +35,9 @@ scales it by ``|g|`` and a noise widens it:
 - ``noise``: the ratio of the two sigmas beyond its sampling spread at that quantile (the
   median absolute deviation's, about ``sqrt(1.36 / n)`` in ``ln`` for ``n`` independent
   samples, ``n`` reduced by 36/70 for the second differences' correlation); its factor is the
-  one that widens the healthy roughness by that ratio;
+  one that widens the healthy roughness by that ratio; unless a gain above 1, which roughens
+  the readings too, explains the residual better (``(g - 1) h`` in it, which a noise leaves
+  out);
 - otherwise bias, drift and gain by the residual's information criterion as above, each also
   scored on the ratio it predicts (1 for a bias or a drift, ``|g|`` for a gain, its sigma as
   above), which tells a gain from a bias where the channel holds still and the residual
@@ -200,8 +202,8 @@ def classify_failure(
         ]  # fmt: skip
     elif texture.spike_size is not None:
         return FailureName("spikes", texture.spike_size)
-    elif texture.rough:
-        return FailureName("noise", baseline.factor(texture.log_ratio, r))
+    elif texture.rough:  # a noise, or a gain above 1, which roughens the readings too
+        return _noise_or_gain(e, h, s2, r, texture, baseline)
     else:  # the residual names an offset or a gain; the roughness weighs a gain against them
         loose = _LoosePrediction(h, s2, r)
         candidates = [
@@ -222,6 +224,27 @@ def classify_failure(
         factor = _roughness_factor(t, z, r)
         return FailureName("noise", best[3] if factor is None else factor)
     return FailureName(best[2], best[3])
+
+
+def _noise_or_gain(
+    e: np.ndarray, h: np.ndarray, s2: np.ndarray, r: float, texture: _Texture,
+    baseline: Roughness,
+) -> FailureName:  # fmt: skip
+    """Readings rougher than the channel's own: a noise, or a gain above 1.
+
+    A noise widens the roughness by the factor that widening says; a gain above 1 scales it by
+    ``g`` and puts ``(g - 1) h`` in the residual (a range set wrong reads twice the truth).
+
+    Both are scored on the residual read through the prediction's own error
+    (:class:`_LoosePrediction`): the noise's with the sensor's variance widened by its factor
+    (the prediction's budget ``s2 - R`` kept), the gain's with the roughness it explains.
+    """
+    factor = baseline.factor(texture.log_ratio, r)
+    noisy = _LoosePrediction(h, s2 + (factor**2 - 1.0) * r, factor**2 * r)
+    gain = _scale_of_roughness(e, h, texture, _LoosePrediction(h, s2, r))
+    if gain[0] > noisy.log_likelihood(e):  # one parameter each
+        return FailureName("scale", gain[3])
+    return FailureName("noise", factor)
 
 
 def _deviation(
