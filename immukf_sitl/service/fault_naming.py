@@ -440,12 +440,10 @@ class _LoosePrediction:
         spread = float(np.var(h))
         self._d = np.array([budget, budget / spread if spread > 0.0 else 0.0])
         self._u = np.column_stack([np.ones_like(h), h - float(np.mean(h))]) * self._w[:, None]
-        gram = self._u.T @ self._u
-        self._m = np.linalg.inv(np.eye(2) + self._d[:, None] * gram)  # (I + D U'U)^-1: the
-        # push-through identity (I + U D U')^-1 = I - U (I + D U'U)^-1 D U'
-        self._constant = math.log(np.linalg.det(np.eye(2) + self._d[:, None] * gram)) + float(
-            np.sum(np.log(2.0 * np.pi * s2))
-        )
+        inner = np.eye(2) + self._d[:, None] * (self._u.T @ self._u)  # I + D U'U
+        # push-through: (I + U D U')^-1 = I - U (I + D U'U)^-1 D U'; det = det(I + D U'U)
+        self._m = np.linalg.inv(inner)
+        self._constant = math.log(np.linalg.det(inner)) + float(np.sum(np.log(2.0 * np.pi * s2)))
 
     def _inverse(self, v: np.ndarray) -> np.ndarray:
         """``(I + U D U')^-1 v`` for whitened ``v`` (a vector or the columns of a matrix)."""
