@@ -611,7 +611,7 @@ class FaultNamer:
         self._baselines: dict[int, Roughness | None] = {}  # channel -> roughness before it
         self._samples: dict[int, list[tuple[float, float, float, float]]] = {}
         self._first: dict[int, FailureName] = {}  # channel -> first name, waiting for a second look
-        self._last: dict[int, FailureName] = {}  # channel -> a bias, waiting for the last look
+        self._last: set[int] = set()  # channels named a bias, waiting for the last look
 
     @property
     def pending(self) -> bool:
@@ -649,7 +649,7 @@ class FaultNamer:
             self._pending.pop(c, None)
             self._samples.pop(c, None)
             self._first.pop(c, None)
-            self._last.pop(c, None)
+            self._last.discard(c)
             self._baselines.pop(c, None)
 
     def observe(
@@ -703,7 +703,7 @@ class FaultNamer:
                 if again.kind != first.kind or again.kind == "drift":
                     out.append((i, again))
                 if again.kind == "bias" and self.last_look_s > self.second_look_s:
-                    self._last[i] = again
+                    self._last.add(i)
                 else:
                     self.cancel(i)
                 continue
