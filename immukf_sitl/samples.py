@@ -49,7 +49,7 @@ class ImuSample:
 
 @dataclass(frozen=True)
 class GpsSample:
-    """One GPS_RAW_INT fix.
+    """One GPS fix (GPS_RAW_INT, GPS2_RAW or HIL_GPS; a log's GPS record).
 
     Attributes
     ----------
@@ -66,6 +66,9 @@ class GpsSample:
         Course over the ground (rad, 0 north, clockwise), in [-pi, pi).
     fix_type : int
         GPS_FIX_TYPE (3 = 3D fix).
+    velocity_down_mps : float or None
+        Vertical velocity over the ground, NED down (m/s); None where the source does not
+        carry it (GPS_RAW_INT has no field for it).
     """
 
     time_s: float
@@ -75,6 +78,7 @@ class GpsSample:
     ground_speed_mps: float
     course_rad: float
     fix_type: int = 3
+    velocity_down_mps: float | None = None
 
 
 @dataclass(frozen=True)

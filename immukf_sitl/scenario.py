@@ -360,6 +360,10 @@ def _sensors(r: YamlFields) -> SensorSpec:
         ),
         course_sigma_mps=gps_r.number("course_sigma_mps", d_gps.course_sigma_mps, lo=0.0),
         k_gps_per_s=gps_r.number("k_gps_per_s", d_gps.k_gps_per_s, lo=0.0, hi=10.0),
+        velocity_down_sigma_mps=gps_r.number(
+            "velocity_down_sigma_mps", d_gps.velocity_down_sigma_mps, lo=0.0, lo_open=True
+        ),
+        reports_velocity_down=gps_r.boolean("reports_velocity_down", d_gps.reports_velocity_down),
     )
     gps_r.done()
     r.done()

@@ -45,6 +45,8 @@ __all__ = ["Flight", "FlightRecord", "fly"]
 #: (:data:`immukf_sitl.models.airframe.AIRFRAME_STREAM_INDEX`).
 TURBULENCE_STREAM_INDEX = 4
 IMU_BIAS_STREAM_INDEX = 5
+#: seed spawn key of the GPS receiver's vertical-velocity noise
+GPS_VELOCITY_DOWN_STREAM_INDEX = 7
 
 
 @dataclass(frozen=True)
@@ -150,8 +152,13 @@ class Flight:
             bias_rng=np.random.default_rng(bias_seed),
             dt_s=dt_s,
         )
+        velocity_down_seed = np.random.SeedSequence(
+            self.seed, spawn_key=(GPS_VELOCITY_DOWN_STREAM_INDEX,)
+        )
         self.gps = GpsModel(
-            gps_spec if gps_spec is not None else GpsSpec(), np.random.default_rng(gps_seed)
+            gps_spec if gps_spec is not None else GpsSpec(),
+            np.random.default_rng(gps_seed),
+            velocity_down_rng=np.random.default_rng(velocity_down_seed),
         )
         self._gains = gains
         self.manoeuvres = tuple(manoeuvres)

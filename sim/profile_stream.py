@@ -3,10 +3,11 @@
 :class:`ProfileStream` turns each truth record (one per truth step) into what a
 :class:`~immukf_sitl.stream_profile.StreamProfile` puts on the wire at that moment, in
 sending order: HEARTBEAT (1 Hz of sim time, with the profile's autopilot), GPS_RAW_INT (when
-the record has a fix), SERVO_OUTPUT_RAW (when due at the servo rate) and the IMU messages
-(when due at the IMU rate). An IMU message carries the mean of the samples since the last one
-(the mean of one sample is the sample itself), stamped with the last sample's time, in the
-message's own units and integer quantisation
+the record has a fix; the native profile's HIL_GPS for a receiver that reports its vertical
+velocity, which ArduPilot's and PX4's GPS_RAW_INT drop), SERVO_OUTPUT_RAW (when due at the
+servo rate) and the IMU messages (when due at the IMU rate). An IMU message carries the mean of
+the samples since the last one (the mean of one sample is the sample itself), stamped with the
+last sample's time, in the message's own units and integer quantisation
 (:func:`immukf_sitl.mavlink.codec.imu_message`). The ArduPilot profile sends a second IMU
 as SCALED_IMU2, with its own noise and turn-on bias, as a Pixhawk's second IMU would.
 
@@ -23,6 +24,7 @@ from __future__ import annotations
 import numpy as np
 
 from immukf_sitl.mavlink.codec import (
+    gps_message,
     gps_raw_int_message,
     heartbeat_message,
     imu_message,
@@ -176,7 +178,8 @@ class ProfileStream:
             out.append(heartbeat_message(mavlink.MAV_TYPE_FIXED_WING, self.autopilot))
             self._next_heartbeat_s += self.heartbeat_period_s
         if record.gps is not None:
-            out.append(gps_raw_int_message(record.gps))
+            native = self.profile.name == "native"
+            out.append(gps_message(record.gps) if native else gps_raw_int_message(record.gps))
         if self._servo_due(record.time_s):
             out.append(servo_output_raw_message(self.actuator_sample(record)))
         self._means[0].add(record.imu)

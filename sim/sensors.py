@@ -124,6 +124,10 @@ class GpsModel:
         Source of all the noise.
     start_time_s : float, optional
         Time of the first fix (s).
+    velocity_down_rng : numpy.random.Generator, optional
+        Source of the vertical velocity's noise, where ``spec.reports_velocity_down``: a
+        stream of its own, so that a receiver that reports it draws every other error as one
+        that does not.
 
     Notes
     -----
@@ -133,9 +137,18 @@ class GpsModel:
     the driving noise a fix of that period takes (``GpsSpec.driving_sigmas_ned_m``).
     """
 
-    def __init__(self, spec: GpsSpec, rng: np.random.Generator, start_time_s: float = 0.0) -> None:
+    def __init__(
+        self,
+        spec: GpsSpec,
+        rng: np.random.Generator,
+        start_time_s: float = 0.0,
+        velocity_down_rng: np.random.Generator | None = None,
+    ) -> None:
+        if spec.reports_velocity_down and velocity_down_rng is None:
+            raise ValueError("a receiver that reports its vertical velocity needs its own rng")
         self.spec = spec
         self._rng = rng
+        self._velocity_down_rng = velocity_down_rng
         self._next_time_s = float(start_time_s)
         self._count = 0
         self._start_time_s = float(start_time_s)
@@ -181,6 +194,11 @@ class GpsModel:
         ground_speed = ground_speed_true + spec.ground_speed_sigma_mps * self._rng.standard_normal()
         course_sigma = spec.course_sigma_mps / max(ground_speed_true, 1.0)
         course = truth.course_rad + course_sigma * self._rng.standard_normal()
+        velocity_down = None
+        if spec.reports_velocity_down:
+            assert self._velocity_down_rng is not None
+            noise = spec.velocity_down_sigma_mps * self._velocity_down_rng.standard_normal()
+            velocity_down = float(truth.velocity_ned_mps[2] + noise)
         return GpsSample(
             time_s=truth.time_s,
             lat_deg=float(lat),
@@ -188,4 +206,5 @@ class GpsModel:
             alt_m=float(alt),
             ground_speed_mps=float(abs(ground_speed)),
             course_rad=float(math.remainder(course, 2.0 * math.pi)),
+            velocity_down_mps=velocity_down,
         )

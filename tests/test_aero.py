@@ -180,6 +180,9 @@ def test_body_velocity_rotates_into_ned_like_scipy(model: AeroModel) -> None:
     x = random_states(rng, (50,))
     xd = model.derivatives(0.0, x, np.array([0.0, 0.0, 0.0, 0.7]))
     gps = model.gps(0.0, x, np.zeros(4))
+    with_vd = model.gps(0.0, x, np.zeros(4), velocity_down=True)
+    assert gps.shape == (5, 50) and with_vd.shape == (6, 50)
+    np.testing.assert_array_equal(with_vd[:5], gps)
     for j in range(50):
         rot = Rotation.from_euler("ZYX", [x[8, j], x[7, j], x[6, j]])
         v_ned = rot.apply(x[3:6, j])
@@ -187,6 +190,7 @@ def test_body_velocity_rotates_into_ned_like_scipy(model: AeroModel) -> None:
         np.testing.assert_allclose(gps[0:3, j], x[0:3, j])
         assert gps[3, j] == pytest.approx(np.hypot(v_ned[0], v_ned[1]), rel=1e-13)
         assert gps[4, j] == pytest.approx(np.arctan2(v_ned[1], v_ned[0]), abs=1e-13)
+        assert with_vd[5, j] == pytest.approx(v_ned[2], abs=1e-12)
 
 
 def test_specific_force_is_what_an_accelerometer_measures(params) -> None:

@@ -28,6 +28,7 @@ FMT_COLUMNS = "Type,Length,Name,Format,Columns"
 ARDUPILOT = {
     "IMU": ("QBffffffIIfBBHH", "TimeUS,I,GyrX,GyrY,GyrZ,AccX,AccY,AccZ,EG,EA,T,GH,AH,GHz,AHz"),
     "GPS": ("QBBIHBcLLeffffB", "TimeUS,I,Status,GMS,GWk,NSats,HDop,Lat,Lng,Alt,Spd,GCrs,VZ,Yaw,U"),
+    "GPA": ("QBCCCCfBIH", "TimeUS,I,VDop,HAcc,VAcc,SAcc,YAcc,VV,SMS,Delta"),
     "RCOU": ("QHHHHHHHHHHHHHH", "TimeUS," + ",".join(f"C{i}" for i in range(1, 15))),
     "PARM": ("QNff", "TimeUS,Name,Value,Default"),
     "MSG": ("QZ", "TimeUS,Message"),
@@ -354,3 +355,27 @@ def test_the_writer_refuses_a_time_before_boot(tmp_path):
     log.faults = [FaultRecord("zero", ("q",), -0.5)]
     with pytest.raises(ValueError, match="unsigned"):
         write_dataflash(tmp_path / "neg.bin", log)
+
+
+def test_a_fix_keeps_its_vertical_speed_where_its_gpa_says_the_receiver_has_one(tmp_path):
+    """VZ is read where GPA.VV is 1 (the writer writes one per fix), and dropped where it is
+    0, or where no GPA follows (ArduPilot logs VZ 0 for a receiver without it)."""
+    fixes = [GpsSample(0.2 * k, 47.0, 8.0, 400.0, 20.0, 0.1, 3, vd)
+             for k, vd in enumerate([-1.25, None, 0.5])]  # fmt: skip
+    path = tmp_path / "vz.bin"
+    write_dataflash(path, FlightLog(stream=list(fixes)))
+    records = parse_by_hand(path.read_bytes())[1]
+    gpa = [f for n, f, _ in records if n == "GPA"]
+    assert [f["VV"] for f in gpa] == [1, 0, 1]
+    assert [f["TimeUS"] for f in gpa] == [0, 200000, 400000]
+    vz = [f["VZ"] for n, f, _ in records if n == "GPS"]
+    assert vz == [-1.25, 0.0, 0.5]
+    back = of_type(read_dataflash(path), GpsSample)
+    assert [s.velocity_down_mps for s in back] == [-1.25, None, 0.5]
+    without_gpa = tmp_path / "no-gpa.bin"
+    data = path.read_bytes()
+    starts = [offset for _, _, offset in records] + [len(data)]
+    spans = zip(records, starts, starts[1:], strict=False)
+    without_gpa.write_bytes(b"".join(data[a:b] for (n, _, _), a, b in spans if n != "GPA"))
+    back = of_type(read_dataflash(without_gpa), GpsSample)
+    assert len(back) == 3 and all(s.velocity_down_mps is None for s in back)

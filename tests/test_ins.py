@@ -56,6 +56,9 @@ def test_coordinated_turn_is_a_circle() -> None:
     gps = ins.gps(t, x, u)
     assert gps[3] == pytest.approx(speed, rel=1e-9)
     assert gps[4] == pytest.approx(wrapped, abs=1e-9)
+    with_vd = ins.gps(t, x, u, velocity_down=True)
+    np.testing.assert_array_equal(with_vd[:5], gps)
+    assert with_vd[5] == pytest.approx(0.0, abs=1e-8)  # a level turn: no vertical velocity
 
 
 def test_ins_fed_by_the_aero_model_imu_follows_the_aero_model() -> None:

@@ -165,6 +165,14 @@ def test_a_missing_file_is_one_line(tmp_path):
         ("start:\n", r"bad\.yaml: start: expected a mapping, got None"),
         ("sensors:\n", r"bad\.yaml: sensors: expected a mapping, got None"),
         ("sensors: {imu: null}\n", r"bad\.yaml: sensors\.imu: expected a mapping, got None"),
+        (
+            "sensors: {gps: {reports_velocity_down: yes please}}\n",
+            r"bad\.yaml: sensors\.gps\.reports_velocity_down: expected true or false",
+        ),
+        (
+            "sensors: {gps: {velocity_down_sigma_mps: 0}}\n",
+            r"bad\.yaml: sensors\.gps\.velocity_down_sigma_mps: expected a number > 0",
+        ),
     ],
 )
 def test_an_empty_block_is_one_line(tmp_path, extra, pattern):

@@ -188,3 +188,26 @@ def test_sensors_produce_the_project_sample_types(truth):
     assert fix.fix_type == 3
     with pytest.raises(ValueError):
         imu.accel_mps2[0] = 1.0  # read-only
+
+
+def test_a_receiver_that_reports_its_vertical_velocity_draws_it_from_a_stream_of_its_own(truth):
+    """vD is truth plus white noise of the sheet's sigma (chi-square bounds), and the rest of
+    each fix is drawn exactly as by a receiver that does not report it."""
+    spec = GpsSpec(reports_velocity_down=True, velocity_down_sigma_mps=0.15)
+    with pytest.raises(ValueError, match="own rng"):
+        GpsModel(spec, np.random.default_rng(SEED))
+    reporting = GpsModel(
+        spec, np.random.default_rng(SEED), velocity_down_rng=np.random.default_rng(SEED + 1)
+    )
+    silent = GpsModel(GpsSpec(), np.random.default_rng(SEED))
+    n = 4000
+    errors = []
+    for k in range(n):
+        state = dataclasses.replace(truth, time_s=float(k))
+        fix, plain = reporting.read(state), silent.read(state)
+        assert plain.velocity_down_mps is None
+        assert dataclasses.replace(fix, velocity_down_mps=None) == plain
+        errors.append(fix.velocity_down_mps - truth.velocity_ned_mps[2])
+    lo, hi = chi2_bounds(n, 0.15)
+    assert lo < np.std(errors, ddof=1) < hi
+    assert abs(np.mean(errors)) < 4 * 0.15 / math.sqrt(n)

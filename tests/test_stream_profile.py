@@ -7,6 +7,7 @@ messages (within the wire's quantisation), a chi-square bound for the per-sample
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections import Counter
 
@@ -20,6 +21,7 @@ from immukf_sitl.mavlink.servo_params import ServoParamRequest
 from immukf_sitl.mavlink.stream_requests import StreamRequest
 from immukf_sitl.mavlink.wire import mavlink
 from immukf_sitl.models.servo_map import ServoMap
+from immukf_sitl.samples import GpsSample
 from immukf_sitl.scenario import ScenarioError, load_scenario
 from immukf_sitl.stream_profile import StreamProfile
 from sim.emitter import profile_argv, profile_from_args
@@ -204,3 +206,40 @@ def test_run_refuses_a_profile_without_the_faulted_imu(tmp_path, capsys) -> None
     assert main(["run", str(path), "--profile", "px4", "--out-dir", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and "faults[0].imu: 1, but the px4 profile sends imu 0 as" in err
+
+
+@pytest.mark.parametrize(("name", "message"), [("native", "HIL_GPS"), ("ardupilot", "GPS_RAW_INT")])
+def test_a_vertical_velocity_goes_on_the_wire_where_the_profile_sends_it(name, message) -> None:
+    """The native sim sends a receiver's vD in HIL_GPS (packed and parsed as MAVLink 2 bytes,
+    within its cm/s); ArduPilot's GPS_RAW_INT has no field for it, as on the real link."""
+    gps = dataclasses.replace(SCENARIO.sensors.gps, reports_velocity_down=True, rate_hz=5.0)
+    scenario = dataclasses.replace(SCENARIO, sensors=dataclasses.replace(SCENARIO.sensors, gps=gps))
+    profile = StreamProfile(name)
+    flight = flight_from_scenario(scenario, profile=profile)
+    stream, _ = profile_stream(flight, profile)
+    sender, parser = mavlink.MAVLink(None, 1, 1), mavlink.MAVLink(None, 255, 190)
+    fixes = []
+    for k in range(int(round(1.0 / flight.driver.dt_s)) + 1):
+        record = flight.start() if k == 0 else flight.step()
+        for msg in stream.messages(record):
+            if msg.get_type() in ("GPS_RAW_INT", "HIL_GPS"):
+                fixes.append((record.gps, parser.parse_buffer(msg.pack(sender))[0]))
+    assert len(fixes) == 6 and {m.get_type() for _, m in fixes} == {message}
+    for sent, msg in fixes:
+        got = codec.decode_gps(msg)
+        assert sent.velocity_down_mps is not None
+        if message == "HIL_GPS":
+            assert got.velocity_down_mps == pytest.approx(sent.velocity_down_mps, abs=0.005)
+        else:
+            assert got.velocity_down_mps is None
+        assert got.ground_speed_mps == pytest.approx(sent.ground_speed_mps, abs=0.005)
+        assert abs(math.remainder(got.course_rad - sent.course_rad, 2 * math.pi)) < 1e-4
+        assert (got.lat_deg, got.lon_deg) == pytest.approx((sent.lat_deg, sent.lon_deg), abs=1e-7)
+
+
+def test_a_gps_message_without_a_3d_fix_is_named_in_its_error() -> None:
+    fix = GpsSample(1.0, 47.0, 8.0, 400.0, 20.0, 0.5, 2, -0.5)
+    with pytest.raises(codec.DecodeError, match="HIL_GPS fix_type 2 is not a 3D fix"):
+        codec.decode_gps(codec.gps_message(fix))
+    with pytest.raises(ValueError, match="vertical velocity"):
+        codec.hil_gps_message(dataclasses.replace(fix, velocity_down_mps=None))

@@ -313,3 +313,22 @@ def test_truncated_file_gives_whole_records_or_one_line_error(
     cut_records = sum(len(d.data["timestamp"]) for d in ULog(str(cut_path)).data_list)
     assert cut_records == records - 1
     assert 0 < outcomes[-3] < outcomes[-2] < outcomes[-1]
+
+
+def test_a_fix_carries_vel_d_where_vel_ned_valid_says_so(tmp_path: Path) -> None:
+    """vel_d_m_s (NED down) is read where vel_ned_valid is set, as pyulog reads the file;
+    vel_n/vel_e are the ground speed along the course."""
+    stream: list = []
+    for k, vd in enumerate([-1.5, None, 2.25]):
+        t_s = 10.0 + k
+        stream.append(ImuSample(t_s, [0.0, 0.0, -9.8], [0.0, 0.0, 0.0]))
+        stream.append(GpsSample(t_s, 47.3977, 8.5456, 150.0, 20.0, math.pi / 6, 3, vd))
+    path = tmp_path / "vd.ulg"
+    write_ulog(path, FlightLog(stream=stream))
+    gps = next(d for d in ULog(str(path)).data_list if d.name == "vehicle_gps_position").data
+    assert list(gps["vel_ned_valid"]) == [1, 0, 1]
+    np.testing.assert_allclose(gps["vel_d_m_s"], [-1.5, 0.0, 2.25])
+    np.testing.assert_allclose(gps["vel_n_m_s"], 20.0 * math.cos(math.pi / 6), rtol=1e-6)
+    np.testing.assert_allclose(gps["vel_e_m_s"], 10.0, rtol=1e-6)
+    back = _of(read_ulog(path), GpsSample)
+    assert [s.velocity_down_mps for s in back] == [-1.5, None, 2.25]

@@ -7,8 +7,10 @@ the one ArduPilot's tools use) needs no table of its own; the format characters 
 (``L`` int32 1e-7 deg, ``e`` int32 x 100, ``c`` int16 x 100).
 
 What the reader takes: IMU (one instance, ``I``; IMU2/IMU3 and a missing ``I`` in older logs),
-GPS instance 0 with a 3D fix or better, RCOU, PARM, the firmware string (MSG or VER) and every
-MSG text, for the ``SCENARIO`` and ``FAULT`` annotations.
+GPS instance 0 with a 3D fix or better (its vertical speed ``VZ``, NED down, only where the GPA
+record of the same fix says the receiver has one, ``VV`` 1: a receiver without logs 0), RCOU,
+PARM, the firmware string (MSG or VER) and every MSG text, for the ``SCENARIO`` and ``FAULT``
+annotations.
 
 The writer exists so that the project's simulated flights (with injected faults) can be
 replayed as ArduPilot logs in tests, since no public fixed-wing log with an IMU fault is at
@@ -22,7 +24,9 @@ hand. It writes, all with ArduPilot's message names, formats, field names and un
   ``SCENARIO <name>``, as the project's tlogs carry the scenario;
 - the stream: IMU with ``I`` = 0, gyro (rad/s) and accel (m/s^2) as float32, health 1 and the
   stream's rate; GPS instance 0 with the sample's fix type, Lat/Lng in 1e-7 deg, Alt in cm,
-  Spd in m/s, GCrs in deg [0, 360) (NSats 10, HDop 1, GPS week 0: the sim has no calendar);
+  Spd in m/s, GCrs in deg [0, 360) (NSats 10, HDop 1, GPS week 0: the sim has no calendar),
+  VZ the fix's vertical velocity (0 without one), and after it a GPA whose VV says whether it
+  had one;
   RCOU with channels 1..14 (ArduPilot logs 15..18 in RCO2, which this writer leaves out);
 - the fault annotations as MSG texts at their times (start and ``FAULT END``), as the fault
   proxy's STATUSTEXT in a tlog.
@@ -33,6 +37,7 @@ is not written: it stays in the tlog.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import re
 import struct
@@ -52,7 +57,7 @@ FMT_TYPE = 128
 
 #: struct code of each format character the writer uses (LogStructure.h)
 _STRUCT_CODES = {
-    "b": "b", "B": "B", "H": "H", "I": "I", "f": "f", "d": "d", "Q": "Q",
+    "b": "b", "B": "B", "H": "H", "C": "H", "I": "I", "f": "f", "d": "d", "Q": "Q",
     "n": "4s", "N": "16s", "Z": "64s", "c": "h", "e": "i", "L": "i",
 }  # fmt: skip
 
@@ -71,6 +76,10 @@ _FORMATS: dict[str, tuple[int, str, str, str, str]] = {
         70, "QBBIHBcLLeffffB", "TimeUS,I,Status,GMS,GWk,NSats,HDop,Lat,Lng,Alt,Spd,GCrs,VZ,Yaw,U",
         "s#-s-S-DUmnhnh-", "F--C-0BGGB000--",
     ),
+    "GPA": (
+        71, "QBCCCCfBIH", "TimeUS,I,VDop,HAcc,VAcc,SAcc,YAcc,VV,SMS,Delta",
+        "s#-mmnd-s-", "F-------C-",
+    ),
     "IMU": (
         131, "QBffffffIIfBBHH", "TimeUS,I,GyrX,GyrY,GyrZ,AccX,AccY,AccZ,EG,EA,T,GH,AH,GHz,AHz",
         "s#EEEooo--O--zz", "F-000000-----00",
@@ -83,7 +92,7 @@ _FORMATS: dict[str, tuple[int, str, str, str, str]] = {
 #: the units and multipliers the formats above refer to (ArduPilot's log_Units, log_Multipliers)
 _UNITS = {"-": "", "#": "instance", "s": "s", "E": "rad/s", "o": "m/s/s", "O": "degC", "z": "Hz",
           "Y": "us", "S": "satellites", "D": "deglatitude", "U": "deglongitude", "m": "m",
-          "n": "m/s", "h": "degheading", "b": "B"}  # fmt: skip
+          "n": "m/s", "h": "degheading", "b": "B", "d": "deg"}  # fmt: skip
 _MULTIPLIERS = {"-": 0.0, "0": 1.0, "B": 1e-2, "C": 1e-3, "F": 1e-6, "G": 1e-7}
 #: VER.BU (APM_BUILD_*) of each vehicle class
 _BUILD_TYPES = {"ground rover": 1, "multicopter": 2, "fixed-wing": 3, "antenna tracker": 4,
@@ -158,6 +167,7 @@ def read_dataflash(path: str | Path, imu: int | None = None) -> FlightLog:
     log = FlightLog(kind="dataflash")
     notes = Annotations()
     items: list[tuple[int, ImuSample | GpsSample | ActuatorSample]] = []  # (IMU instance or -1)
+    vertical: set[float] = set()  # times of the fixes whose GPA says VZ is measured
     try:
         while True:
             start = reader.offset
@@ -166,9 +176,10 @@ def read_dataflash(path: str | Path, imu: int | None = None) -> FlightLog:
                 log.bad_records += int(start < reader.data_len)  # a record cut short
                 break
             log.bad_records += int(reader.offset - msg.fmt.len > start)  # bytes skipped
-            _take(msg, log, notes, items)
+            _take(msg, log, notes, items, vertical)
     finally:
         reader.close()
+    items = [_vertical_checked(item, vertical) for item in items]
     counts = Counter(instance for instance, _ in items if instance >= 0)
     log.imu_sources = {f"IMU[{k}]": n for k, n in sorted(counts.items())}
     if imu is None:
@@ -189,8 +200,9 @@ def _take(
     log: FlightLog,
     notes: Annotations,
     items: list[tuple[int, ImuSample | GpsSample | ActuatorSample]],
+    vertical: set[float],
 ) -> None:
-    """File one record into the log being read."""
+    """File one record into the log being read (a GPA's ``VV`` into ``vertical``)."""
     kind = m.get_type()  # fields as attributes, the format characters' multipliers applied
     if kind in _IMU_NAMES:
         t_s = _time_s(m)
@@ -206,9 +218,13 @@ def _take(
             course_rad = _wrap_pi(math.radians(_field(m, "GCrs", "Crs", "COG")))
             lat, lon = _field(m, "Lat"), _field(m, "Lng", "Lon")
             speed = _field(m, "Spd", "Speed")
-            items.append(
-                (-1, GpsSample(t_s, lat, lon, _field(m, "Alt"), speed, course_rad, status))
-            )
+            vz = _field(m, "VZ", default=math.nan)
+            fix = GpsSample(t_s, lat, lon, _field(m, "Alt"), speed, course_rad, status, vz)
+            items.append((-1, fix))
+    elif kind == "GPA":
+        t_s = _time_s(m, ms_ok=False)
+        if t_s is not None and int(_field(m, "I")) == 0 and int(_field(m, "VV")) == 1:
+            vertical.add(t_s)
     elif kind == "RCOU":
         t_s = _time_s(m)
         if t_s is not None:
@@ -319,6 +335,18 @@ def write_dataflash(
     return len(data)
 
 
+def _vertical_checked(
+    item: tuple[int, ImuSample | GpsSample | ActuatorSample], vertical: set[float]
+) -> tuple[int, ImuSample | GpsSample | ActuatorSample]:
+    """A fix keeps its ``VZ`` only where its GPA said the receiver measures it."""
+    instance, sample = item
+    if isinstance(sample, GpsSample) and sample.velocity_down_mps is not None:
+        measured = sample.time_s in vertical and math.isfinite(sample.velocity_down_mps)
+        if not measured:
+            return instance, dataclasses.replace(sample, velocity_down_mps=None)
+    return item
+
+
 def _stream_record(
     packer: _Packer, time_us: int, item: ImuSample | GpsSample | ActuatorSample | str, rate_hz: int
 ) -> bytes:
@@ -331,11 +359,17 @@ def _stream_record(
         )  # no errors, 25 degC, healthy
     if isinstance(item, GpsSample):
         course_deg = math.degrees(item.course_rad) % 360.0
-        return packer.record(
+        vz = item.velocity_down_mps
+        fix = packer.record(
             "GPS", time_us, 0, min(max(int(item.fix_type), 0), 255), 0, 0, 10, 100,
             round(item.lat_deg * 1e7), round(item.lon_deg * 1e7), round(item.alt_m * 100.0),
-            item.ground_speed_mps, course_deg, 0.0, 0.0, 1,
+            item.ground_speed_mps, course_deg, 0.0 if vz is None else vz, 0.0, 1,
         )  # fmt: skip
+        sample_ms = (time_us // 1000) & 0xFFFFFFFF
+        accuracy = packer.record(
+            "GPA", time_us, 0, 120, 0, 0, 0, 0.0, int(vz is not None), sample_ms, 0
+        )
+        return fix + accuracy
     if isinstance(item, ActuatorSample):
         pwm = [*item.pwm_us[:14], *[0] * max(0, 14 - len(item.pwm_us))]
         return packer.record("RCOU", time_us, *pwm)

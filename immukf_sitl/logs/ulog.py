@@ -197,9 +197,13 @@ def write_ulog(
                    accelerometer_m_s2=s.accel_mps2, accelerometer_integral_dt=dt_us)  # fmt: skip
         elif isinstance(s, GpsSample):
             alt_mm = int(round(s.alt_m * 1e3))
+            vd = s.velocity_down_mps
             w.data("vehicle_gps_position", t_us, lat=int(round(s.lat_deg * 1e7)),
                    lon=int(round(s.lon_deg * 1e7)), alt=alt_mm, alt_ellipsoid=alt_mm,
                    vel_m_s=s.ground_speed_mps, cog_rad=s.course_rad, fix_type=s.fix_type,
+                   vel_n_m_s=s.ground_speed_mps * math.cos(s.course_rad),
+                   vel_e_m_s=s.ground_speed_mps * math.sin(s.course_rad),
+                   vel_d_m_s=0.0 if vd is None else vd, vel_ned_valid=vd is not None,
                    heading=math.nan, heading_offset=math.nan)  # fmt: skip
         elif isinstance(s, ActuatorSample):
             pwm = [float(p) for p in s.pwm_us[:16]] + [0.0] * (16 - min(len(s.pwm_us), 16))
@@ -267,7 +271,10 @@ def _dataset(ulog: ULog, *names: str) -> dict[str, np.ndarray] | None:
 
 
 def _gps_samples(ulog: ULog) -> list[GpsSample]:
-    """3D fixes of vehicle_gps_position or sensor_gps (int degE7/mm or the newer doubles)."""
+    """3D fixes of vehicle_gps_position or sensor_gps (int degE7/mm or the newer doubles).
+
+    Each with its ``vel_d_m_s`` (NED down) where ``vel_ned_valid`` says the receiver gave it.
+    """
     data = _dataset(ulog, "vehicle_gps_position", "sensor_gps")
     if data is None:
         return []
@@ -277,9 +284,13 @@ def _gps_samples(ulog: ULog) -> list[GpsSample]:
         lat, lon, alt = data["lat"] * 1e-7, data["lon"] * 1e-7, data["alt"] * 1e-3
     course = (data["cog_rad"].astype(float) + math.pi) % (2.0 * math.pi) - math.pi
     speed, fix, t_us = data["vel_m_s"].astype(float), data["fix_type"], data["timestamp"]
+    down = np.full(len(t_us), np.nan)
+    if "vel_d_m_s" in data and "vel_ned_valid" in data:  # NED down, where the receiver has it
+        down = np.where(data["vel_ned_valid"] != 0, data["vel_d_m_s"].astype(float), np.nan)
     return [
         GpsSample(int(t_us[k]) * 1e-6, float(lat[k]), float(lon[k]), float(alt[k]),
-                  float(speed[k]), float(course[k]), int(fix[k]))
+                  float(speed[k]), float(course[k]), int(fix[k]),
+                  float(down[k]) if math.isfinite(down[k]) else None)
         for k in np.flatnonzero(fix >= 3)
     ]  # fmt: skip
 

@@ -3,8 +3,8 @@
 Every message the project builds or reads field by field is converted here (the serve loop, the
 sim's emitter, the proxy and the log readers call these; nothing else touches message fields).
 Units on the wire (MAVLink common): HIGHRES_IMU m/s^2 and rad/s; GPS_RAW_INT lat/lon degE7,
-alt mm, vel cm/s, cog cdeg (0..35999, 65535 unknown); SERVO_OUTPUT_RAW us; HIL_STATE_QUATERNION
-degE7, mm, cm/s and mG.
+alt mm, vel cm/s, cog cdeg (0..35999, 65535 unknown), and HIL_GPS the same with vn, ve, vd
+cm/s; SERVO_OUTPUT_RAW us; HIL_STATE_QUATERNION degE7, mm, cm/s and mG.
 """
 
 from __future__ import annotations
@@ -157,12 +157,54 @@ def gps_raw_int_message(sample: GpsSample, satellites: int = 12) -> MavMessage:
     )
 
 
-def decode_gps_raw_int(msg: MavMessage) -> GpsSample:
-    """GPS_RAW_INT to a :class:`GpsSample`; raises :class:`DecodeError` without a 3D fix."""
+def hil_gps_message(sample: GpsSample, satellites: int = 12) -> MavMessage:
+    """HIL_GPS of a fix that carries its vertical velocity (GPS_RAW_INT has no field for it).
+
+    HIL_GPS is MAVLink's raw-receiver message with the NED velocity (``vn``, ``ve``, ``vd``,
+    cm/s); ``vn`` and ``ve`` are the ground speed along the course.
+    """
+    if sample.velocity_down_mps is None:
+        raise ValueError("HIL_GPS needs the fix's vertical velocity")
+    speed_cmps = sample.ground_speed_mps * 100.0
+    return mavlink.MAVLink_hil_gps_message(
+        usec(sample.time_s),
+        int(sample.fix_type),
+        int(round(sample.lat_deg * 1e7)),
+        int(round(sample.lon_deg * 1e7)),
+        int(round(sample.alt_m * 1000.0)),
+        70,  # eph: HDOP x 100
+        120,  # epv: VDOP x 100
+        max(0, min(65534, int(round(speed_cmps)))),
+        _cmps(speed_cmps * math.cos(sample.course_rad)),
+        _cmps(speed_cmps * math.sin(sample.course_rad)),
+        _cmps(sample.velocity_down_mps * 100.0),
+        int(round(math.degrees(sample.course_rad) * 100.0)) % 36000,
+        satellites,
+    )
+
+
+def gps_message(sample: GpsSample) -> MavMessage:
+    """The message of a fix: HIL_GPS where it carries its vertical velocity, else GPS_RAW_INT."""
+    return (
+        gps_raw_int_message(sample) if sample.velocity_down_mps is None else hil_gps_message(sample)
+    )
+
+
+def _cmps(value_cmps: float) -> int:
+    """A velocity component in HIL_GPS's int16 cm/s, saturated."""
+    return max(-32767, min(32767, int(round(value_cmps))))
+
+
+def decode_gps(msg: MavMessage) -> GpsSample:
+    """GPS_RAW_INT, GPS2_RAW or HIL_GPS to a :class:`GpsSample` (HIL_GPS's with ``vD``).
+
+    Raises :class:`DecodeError` without a 3D fix, a ground speed and a course.
+    """
+    kind = msg.get_type()
     if msg.fix_type < mavlink.GPS_FIX_TYPE_3D_FIX:
-        raise DecodeError(f"GPS_RAW_INT fix_type {msg.fix_type} is not a 3D fix")
+        raise DecodeError(f"{kind} fix_type {msg.fix_type} is not a 3D fix")
     if msg.cog == GPS_COG_UNKNOWN or msg.vel == 65535:
-        raise DecodeError("GPS_RAW_INT has no ground speed or course")
+        raise DecodeError(f"{kind} has no ground speed or course")
     alt_mm = msg.alt_ellipsoid if getattr(msg, "alt_ellipsoid", 0) else msg.alt
     course = math.radians(msg.cog / 100.0)
     course = (course + math.pi) % (2.0 * math.pi) - math.pi
@@ -174,6 +216,7 @@ def decode_gps_raw_int(msg: MavMessage) -> GpsSample:
         msg.vel / 100.0,
         course,
         int(msg.fix_type),
+        msg.vd / 100.0 if kind == "HIL_GPS" else None,
     )
 
 

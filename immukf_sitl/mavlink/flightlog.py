@@ -217,7 +217,7 @@ def read_flight_log(path: str | Path, imu: int | None = None) -> FlightLog:
                     log.stream.append(codec.decode_imu(msg))
             elif kind in GPS_MESSAGES:
                 if select.follows_gps(msg):
-                    log.stream.append(codec.decode_gps_raw_int(msg))
+                    log.stream.append(codec.decode_gps(msg))
             elif kind == "SERVO_OUTPUT_RAW":
                 if getattr(msg, "port", 0) == 0:  # servos 1-16 (port 1 carries 17-32)
                     log.stream.append(codec.decode_servo_output_raw(msg))

@@ -257,7 +257,7 @@ class EstimatorService:
                     self.stats.ignored += 1  # another IMU, or the same one in another message
             elif kind in GPS_MESSAGES:
                 if self.streams.follows_gps(msg):
-                    self.pipeline.on_gps(codec.decode_gps_raw_int(msg))
+                    self.pipeline.on_gps(codec.decode_gps(msg))
                 else:
                     self.stats.ignored += 1
             elif kind == "SERVO_OUTPUT_RAW":

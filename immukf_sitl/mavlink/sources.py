@@ -4,8 +4,9 @@ An autopilot sends one stream per IMU, and sometimes the same IMU in two message
 RAW_IMU for its first IMU, SCALED_IMU2 and SCALED_IMU3 for the next two (and HIGHRES_IMU in
 recent versions); PX4 HIGHRES_IMU; this project's sim HIGHRES_IMU. The estimator needs exactly
 one, at a steady rate: :class:`StreamSelector` follows the first stream of the asked instance
-(``--imu N``; by default any) that arrives, and the first GPS stream (GPS_RAW_INT or GPS2_RAW),
-and counts every stream it heard, for the reports.
+(``--imu N``; by default any) that arrives, and the first GPS stream (GPS_RAW_INT, GPS2_RAW or
+HIL_GPS, the raw receiver's message with its vertical velocity, as this sim sends a receiver
+that reports it), and counts every stream it heard, for the reports.
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ from collections import Counter
 from immukf_sitl.mavlink.codec import IMU_MESSAGES, imu_instance
 from immukf_sitl.mavlink.wire import MavMessage
 
-GPS_MESSAGES = ("GPS_RAW_INT", "GPS2_RAW")
+GPS_MESSAGES = ("GPS_RAW_INT", "GPS2_RAW", "HIL_GPS")
 
 
 def rate_hint(kind: str) -> str:
@@ -54,7 +55,7 @@ class StreamSelector:
         return key == self.imu_stream
 
     def follows_gps(self, msg: MavMessage) -> bool:
-        """Whether ``msg`` (GPS_RAW_INT or GPS2_RAW) is from the followed GPS stream."""
+        """Whether ``msg`` (one of :data:`GPS_MESSAGES`) is from the followed GPS stream."""
         if self.gps_stream is None:
             self.gps_stream = msg.get_type()
         return msg.get_type() == self.gps_stream

@@ -446,18 +446,23 @@ class AeroModel:
             kernels.uncompiled.imu(x, u, e, self._k, *scratch, out)
         return out
 
-    def gps(self, t_s: float, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+    def gps(
+        self, t_s: float, x: np.ndarray, u: np.ndarray, velocity_down: bool = False
+    ) -> np.ndarray:
         """Predicted noise-free GPS ``[pN, pE, pD (m), ground speed (m/s), course (rad)]``.
 
         Ground speed is horizontal, ``sqrt(vN^2 + vE^2)``, and course ``atan2(vE, vN)`` in
         ``(-pi, pi]`` (no wind, so the ground velocity is the air velocity rotated to NED).
+        ``velocity_down``: followed by the vertical velocity ``vD`` (m/s, NED down).
         """
-        return self.gps_with(x, None)
+        return self.gps_with(x, None, velocity_down)
 
-    def gps_with(self, x: np.ndarray, e: np.ndarray | None) -> np.ndarray:
+    def gps_with(
+        self, x: np.ndarray, e: np.ndarray | None, velocity_down: bool = False
+    ) -> np.ndarray:
         """:meth:`gps` of ``x`` ``(12, *batch)`` plus the receiver errors held in ``e``."""
         x = np.asarray(x, dtype=float)
-        out = np.empty((5, *x.shape[1:]), dtype=float)
+        out = np.empty((6 if velocity_down else 5, *x.shape[1:]), dtype=float)
         e = np.zeros(kernels.N_EXTRA) if e is None else e
         kernels.uncompiled.gps(x, e, out)  # uncompiled, over whole rows: off the hot path
         return out

@@ -579,13 +579,16 @@ def imu(
 
 @_kernel
 def gps(x: np.ndarray, e: np.ndarray, out: np.ndarray) -> None:
-    """Noise-free GPS ``[pN, pE, pD, Vg, chi]`` into ``out[0:5]``.
+    """Noise-free GPS ``[pN, pE, pD, Vg, chi]`` into ``out[0:5]``, and ``vD`` into ``out[5]``.
 
     Position plus the receiver's slowly wandering error ``e`` (B&M eq. 7.17); ground speed is
     horizontal, ``hypot(vN, vE)``, and course ``atan2(vE, vN)`` in (-pi, pi], both of the
-    velocity over the ground (the state's velocity; the wind does not enter).
+    velocity over the ground (the state's velocity; the wind does not enter). The vertical
+    velocity ``vD`` is written where ``out`` has a sixth row (a receiver that reports it).
     """
-    v_n, v_e, _ = rotate_body_to_ned(x[3], x[4], x[5], euler_trig(x))
+    v_n, v_e, v_d = rotate_body_to_ned(x[3], x[4], x[5], euler_trig(x))
+    if out.shape[0] > 5:
+        out[5] = v_d
     out[0] = x[0] + e[GPS_ERROR_N]
     out[1] = x[1] + e[GPS_ERROR_N + 1]
     out[2] = x[2] + e[GPS_ERROR_N + 2]

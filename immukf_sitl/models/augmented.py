@@ -131,10 +131,16 @@ class AugmentedAeroModel:
         x = np.asarray(x, dtype=float)
         return self.aero.imu_with(x[:N_RIGID], u, x[N_RIGID:])
 
-    def gps(self, t_s: float, x: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """Noise-free GPS ``(5, *batch)``: position plus the receiver's error, ground velocity."""
+    def gps(
+        self, t_s: float, x: np.ndarray, u: np.ndarray, velocity_down: bool = False
+    ) -> np.ndarray:
+        """Noise-free GPS ``(5, *batch)``: position plus the receiver's error, ground velocity.
+
+        ``velocity_down``: ``(6, *batch)``, the vertical velocity last (the receiver's own
+        error on it is white: no state).
+        """
         x = np.asarray(x, dtype=float)
-        return self.aero.gps_with(x[:N_RIGID], x[N_RIGID:])
+        return self.aero.gps_with(x[:N_RIGID], x[N_RIGID:], velocity_down)
 
 
 @dataclass(frozen=True)

@@ -161,17 +161,22 @@ class InsModel:
         out[8] = (out[8] + math.pi) % _TWO_PI - math.pi
         return out
 
-    def gps(self, t_s: float, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+    def gps(
+        self, t_s: float, x: np.ndarray, u: np.ndarray, velocity_down: bool = False
+    ) -> np.ndarray:
         """Predicted GPS ``[pN, pE, pD (m), ground speed (m/s), course (rad)]``.
 
         Returns
         -------
         numpy.ndarray
-            ``(5, *batch)``; ground speed is horizontal, course ``atan2(vE, vN)``.
+            ``(5, *batch)``; ground speed is horizontal, course ``atan2(vE, vN)``;
+            ``velocity_down``: ``(6, *batch)``, the state's ``vD`` last.
         """
         x = np.asarray(x, dtype=float)
-        out = np.empty((5, *x.shape[1:]), dtype=float)
+        out = np.empty((6 if velocity_down else 5, *x.shape[1:]), dtype=float)
         out[0:3] = x[0:3]
         out[3] = np.hypot(x[3], x[4])
         out[4] = np.arctan2(x[4], x[3])
+        if velocity_down:
+            out[5] = x[5]
         return out

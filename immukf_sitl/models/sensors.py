@@ -163,6 +163,14 @@ class GpsSpec:
         White-noise standard deviation of the ground speed (m/s).
     course_sigma_mps : float
         Course noise numerator: the course sigma is this divided by the ground speed (rad).
+    velocity_down_sigma_mps : float
+        White-noise standard deviation of the vertical (NED down) velocity (m/s): a Doppler
+        velocity, about twice the horizontal one's, as receivers' sheets give it (0.05 m/s
+        horizontal, 0.1 m/s vertical).
+    reports_velocity_down : bool
+        Whether the simulated receiver reports that velocity. A receiver measures it, but
+        GPS_RAW_INT has no field for it: ArduPilot's and PX4's telemetry drop it (their logs
+        keep it). The estimator reads it wherever a fix carries it.
     """
 
     rate_hz: float = 1.0
@@ -171,6 +179,8 @@ class GpsSpec:
     k_gps_per_s: float = 1.0 / 1100.0
     ground_speed_sigma_mps: float = 0.05
     course_sigma_mps: float = 0.05
+    velocity_down_sigma_mps: float = 0.1
+    reports_velocity_down: bool = False
 
     def __post_init__(self) -> None:
         if not self.rate_hz > 0.0:
@@ -182,6 +192,7 @@ class GpsSpec:
             self.height_sigma_m,
             self.ground_speed_sigma_mps,
             self.course_sigma_mps,
+            self.velocity_down_sigma_mps,
         )
         if not all(s >= 0.0 for s in sigmas):
             raise ValueError(f"GPS standard deviations: expected values >= 0, got {sigmas}")
@@ -214,17 +225,21 @@ class GpsSpec:
         """Course sigma at :data:`NOMINAL_GROUND_SPEED_MPS` (rad)."""
         return self.course_sigma_mps / NOMINAL_GROUND_SPEED_MPS
 
-    def noise_cov(self) -> np.ndarray:
-        """``R`` of ``[pN, pE, pD, ground speed, course]`` (5x5, diagonal, white noise)."""
-        return np.diag(
-            [
-                self.north_east_sigma_m**2,
-                self.north_east_sigma_m**2,
-                self.height_sigma_m**2,
-                self.ground_speed_sigma_mps**2,
-                self.course_sigma_rad**2,
-            ]
-        )
+    def noise_cov(self, velocity_down: bool = False) -> np.ndarray:
+        """``R`` of ``[pN, pE, pD, ground speed, course]`` (diagonal, white noise).
+
+        ``velocity_down``: followed by the vertical velocity's (6x6 instead of 5x5).
+        """
+        sigmas = [
+            self.north_east_sigma_m,
+            self.north_east_sigma_m,
+            self.height_sigma_m,
+            self.ground_speed_sigma_mps,
+            self.course_sigma_rad,
+        ]
+        if velocity_down:
+            sigmas.append(self.velocity_down_sigma_mps)
+        return np.diag(np.square(sigmas))
 
 
 @dataclass(frozen=True)

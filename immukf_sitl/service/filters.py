@@ -19,7 +19,7 @@ records; the estimators hold no state but their filters' safeguard counters.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from functools import cached_property
 from typing import Literal
@@ -75,8 +75,8 @@ def aero_measurement_models(
     sensors: SensorSpec,
     signature: str = "untrusted",
     offset: ChannelOffset | None = None,
-) -> tuple[MeasurementModel, MeasurementModel]:
-    """Mode-batched output models (eq. 2): IMU alone, and IMU followed by GPS.
+) -> tuple[MeasurementModel, MeasurementModel, MeasurementModel]:
+    """Mode-batched output models (eq. 2): IMU alone, IMU and GPS, IMU and GPS with ``vD``.
 
     ``signature`` is what a fault mode predicts on its failed channels
     (:func:`fault_mode_output`): an untrusted mode reads its failed channels through ``offset``
@@ -95,23 +95,33 @@ def aero_measurement_models(
         x = x[:n]
         return np.concatenate([model.imu(t_s, x, u[1]), model.gps(t_s, x, u[1])])
 
+    def imu_gps_vd(t_s: float, x: np.ndarray, u: np.ndarray, w: np.ndarray | None) -> np.ndarray:
+        x = x[:n]
+        return np.concatenate([model.imu(t_s, x, u[1]), model.gps(t_s, x, u[1], True)])
+
     imu_only = MeasurementModel(
         fault_mode_output(imu, modes, signature, offset=offset),
         sensors.imu.noise_cov(),
         name="imu",
         mode_noise_var=None if offsets else fault_mode_noise_var(modes, signature, ranges),
     )
-    gps_cov = np.zeros((11, 11))
-    gps_cov[:6, :6] = sensors.imu.noise_cov()
-    gps_cov[6:, 6:] = sensors.gps.noise_cov()
-    with_gps = MeasurementModel(
-        fault_mode_output(imu_gps, modes, signature, n_extra=5, offset=offset),
-        gps_cov,
-        angle_idx=(6 + GPS_COURSE_CHANNEL,),
-        name="imu+gps",
-        mode_noise_var=None if offsets else fault_mode_noise_var(modes, signature, ranges, 5),
-    )
-    return imu_only, with_gps
+
+    def with_fix(output: Callable, velocity_down: bool) -> MeasurementModel:
+        n_gps = 6 if velocity_down else 5
+        cov = np.zeros((N_IMU + n_gps, N_IMU + n_gps))
+        cov[:N_IMU, :N_IMU] = sensors.imu.noise_cov()
+        cov[N_IMU:, N_IMU:] = sensors.gps.noise_cov(velocity_down)
+        return MeasurementModel(
+            fault_mode_output(output, modes, signature, n_extra=n_gps, offset=offset),
+            cov,
+            angle_idx=(N_IMU + GPS_COURSE_CHANNEL,),
+            name="imu+gps+vd" if velocity_down else "imu+gps",
+            mode_noise_var=(
+                None if offsets else fault_mode_noise_var(modes, signature, ranges, n_gps)
+            ),
+        )
+
+    return imu_only, with_fix(imu_gps, False), with_fix(imu_gps_vd, True)
 
 
 def _sigma(cov: np.ndarray, idx: slice) -> np.ndarray:
@@ -126,8 +136,9 @@ class Observation:
     ----------
     imu : ndarray, shape (6,)
         ``[f_x, f_y, f_z, p, q, r]``; non-finite across a gap (predict only).
-    gps : ndarray, shape (5,), or None
-        ``[pN, pE, pD, ground speed, course]`` when a fix is due.
+    gps : ndarray, shape (5,) or (6,), or None
+        ``[pN, pE, pD, ground speed, course]`` when a fix is due, followed by the vertical
+        velocity ``vD`` where the fix carries it.
     imu_var_scale : float
         The IMU reading's noise variance over the sensor's own ``R`` (1: one sample per filter
         step; the mean of a faster stream's samples has its own,
@@ -318,6 +329,7 @@ class AircraftEstimator(_Bank):
     imm: ImmEstimator
     imu_model: MeasurementModel
     imu_gps_model: MeasurementModel
+    imu_gps_vd_model: MeasurementModel
     filter_model: FilterModel
     dynamics: ModelDynamics
     sensors: SensorSpec
@@ -495,7 +507,10 @@ class AircraftEstimator(_Bank):
         argument is the pair ``[u(k), u(k+1)]``.
         """
         imu, gps = observation.imu, observation.gps
-        model = self.imu_model if gps is None else self.imu_gps_model
+        if gps is None:
+            model = self.imu_model
+        else:
+            model = self.imu_gps_vd_model if gps.shape[0] > 5 else self.imu_gps_model
         extra = np.zeros((len(self.modes), model.nz))
         if observation.imu_var_scale != 1.0:  # the reading's own R, not one sample's
             extra[:, :6] = (observation.imu_var_scale - 1.0) * self.sensors.imu.sigmas**2
@@ -635,12 +650,13 @@ def _assemble(
         ukf, filter_model.transition(modes), floor, dynamics.gate(), history,
         dynamics.history_states(), slots, rest_left_out=left_out,
     )  # fmt: skip
-    imu_model, imu_gps_model = aero_measurement_models(
+    imu_model, imu_gps_model, imu_gps_vd_model = aero_measurement_models(
         dynamics.flown, modes, sensors, filter_model.fault_signature, dynamics.offset
     )
     return AircraftEstimator(
-        variant, tuple(modes), imm, imu_model, imu_gps_model, filter_model, dynamics, sensors
-    )
+        variant, tuple(modes), imm, imu_model, imu_gps_model, imu_gps_vd_model, filter_model,
+        dynamics, sensors,
+    )  # fmt: skip
 
 
 @dataclass(frozen=True, eq=False)
@@ -654,6 +670,7 @@ class InsEstimator(_Bank):
     ins: InsModel
     imm: ImmEstimator
     gps_model: MeasurementModel
+    gps_vd_model: MeasurementModel
     variant: str = "ukf3"
     modes: tuple[FaultMode, ...] = (FaultMode(0),)
 
@@ -678,7 +695,9 @@ class InsEstimator(_Bank):
     ) -> VariantEstimate:
         """Integrate the previous IMU sample up to ``t_next_s``; update with GPS if given."""
         gps = observation.gps
-        z = None if gps is None else Measurement(gps, self.gps_model)
+        z = None
+        if gps is not None:
+            z = Measurement(gps, self.gps_vd_model if gps.shape[0] > 5 else self.gps_model)
         bank = self.imm.step(previous.filter, t_next_s, previous.imu, z)
         imu = observation.imu
         last_imu = imu if np.all(np.isfinite(imu)) else previous.imu  # a gap: keep driving
@@ -724,17 +743,19 @@ def build_ins_estimator(
     additive[6:9, 6:9] = q[3:, 3:] * dt_s**2
     process = ProcessModel(ins.step, 9, q, additive, angle_idx=ins.angle_indices)
 
-    def gps(t_s: float, x: np.ndarray, u: np.ndarray, w: np.ndarray | None) -> np.ndarray:
-        z = ins.gps(t_s, x, u)
-        return z if w is None else z + w
+    def gps_model(velocity_down: bool) -> MeasurementModel:
+        def gps(t_s: float, x: np.ndarray, u: np.ndarray, w: np.ndarray | None) -> np.ndarray:
+            z = ins.gps(t_s, x, u, velocity_down)
+            return z if w is None else z + w
 
-    gps_model = MeasurementModel(
-        gps, sensors.gps.noise_cov(), angle_idx=(GPS_COURSE_CHANNEL,), name="gps"
-    )
+        cov = sensors.gps.noise_cov(velocity_down)
+        name = "gps+vd" if velocity_down else "gps"
+        return MeasurementModel(gps, cov, angle_idx=(GPS_COURSE_CHANNEL,), name=name)
+
     imm = ImmEstimator(
         UnscentedKalmanFilter(process, JulierSigmaPoints(kappa), noise_form), np.ones((1, 1))
     )
-    return InsEstimator(ins, imm, gps_model)
+    return InsEstimator(ins, imm, gps_model(False), gps_model(True))
 
 
 Estimator = AircraftEstimator | InsEstimator

@@ -108,11 +108,13 @@ class StreamCounters:
     IMU samples missing from the stream (against its own rate), ``predict_steps`` the filter's
     predict-only steps (across gaps, and between the samples of a stream slower than the
     filter's step), ``slow_imu_steps`` the steps whose decisions were held because the IMU
-    streamed below ``min_imu_rate_hz``.
+    streamed below ``min_imu_rate_hz``. ``gps_velocity_down`` counts the fixes fused with
+    their vertical velocity (those whose source carries it).
     """
 
     imu_samples: int = 0
     gps_fixes: int = 0
+    gps_velocity_down: int = 0
     actuator_samples: int = 0
     steps: int = 0
     out_of_order: int = 0
@@ -313,14 +315,23 @@ class EstimatorPipeline:
         self._gps_queue.append(sample)
 
     def _gps_observation(self, t_s: float) -> np.ndarray | None:
-        """The newest queued fix not later than ``t_s`` (older ones are superseded)."""
+        """The newest queued fix not later than ``t_s`` (older ones are superseded).
+
+        ``[pN, pE, pD, ground speed, course]``, and the vertical velocity after them where the
+        fix carries it (a finite one).
+        """
         fix = None
         while self._gps_queue and self._gps_queue[0].time_s <= t_s + 0.5 * IMU_PERIOD_S:
             fix = self._gps_queue.popleft()
         if fix is None or self.origin is None:
             return None
         north, east, down = self._frame().to_ned(fix.lat_deg, fix.lon_deg, fix.alt_m)
-        return np.array([north, east, down, fix.ground_speed_mps, fix.course_rad])
+        observed = [north, east, down, fix.ground_speed_mps, fix.course_rad]
+        velocity_down = fix.velocity_down_mps
+        if velocity_down is not None and math.isfinite(velocity_down):
+            observed.append(velocity_down)
+            self.counters.gps_velocity_down += 1
+        return np.array(observed)
 
     def on_imu(self, sample: ImuSample) -> EstimateOutput | None:
         """Run the filter on one IMU sample; None while waiting or for a dropped sample.
