@@ -11,8 +11,9 @@ from immukf_sitl.experiments.replay import ReplayResult, replay, summary_of
 from immukf_sitl.mavlink.flightlog import FlightLog, read_flight_log
 from immukf_sitl.models.earth import LocalGeodetic, NedOrigin, geodetic_to_ned, ned_to_geodetic
 from immukf_sitl.models.params import load_aircraft_params
+from immukf_sitl.models.sensors import GpsSpec, SensorSpec
 from immukf_sitl.samples import ActuatorSample, GpsSample, ImuSample
-from immukf_sitl.service.pipeline import ACTUATOR_TIME_WRAP_S, EstimatorPipeline
+from immukf_sitl.service.pipeline import ACTUATOR_TIME_WRAP_S, EstimatorPipeline, PipelineConfig
 
 # flies JSBSim or the estimator chain
 pytestmark = pytest.mark.slow
@@ -125,6 +126,34 @@ def test_duplicate_and_late_servo_outputs_and_fixes_are_counted_and_never_used(
     assert c.out_of_order == c.restarts == c.realignments == c.stale_actuator_steps == 0
     assert c.steps == short_clean.pipeline.counters.steps
     np.testing.assert_array_equal(_final_state(result), _final_state(short_clean))
+
+
+def test_a_logs_vertical_velocity_is_fused_only_where_the_spec_sheet_says_so(
+    fault_free, short, short_clean
+):
+    """Fixes that carry ``vD`` (here the truth's): the default spec sheet leaves it out (the
+    estimate bit for bit that of the same fixes without it) and counts it; a receiver's spec
+    sheet that reports it fuses it at every fix after the alignment's."""
+    truth = {round(t.t_s, 3): t for t in fault_free.truth}
+    stream = [
+        dataclasses.replace(
+            s, velocity_down_mps=float(truth[round(s.time_s, 3)].velocity_ned_mps[2])
+        )
+        if isinstance(s, GpsSample)
+        else s
+        for s in short
+    ]
+    n_fix = sum(isinstance(s, GpsSample) for s in stream)
+    ignored, _ = _run(fault_free, stream)
+    c = ignored.pipeline.counters
+    assert c.gps_velocity_down == 0 and c.gps_velocity_down_unused >= n_fix - 2
+    np.testing.assert_array_equal(_final_state(ignored), _final_state(short_clean))
+    told = SensorSpec(gps=GpsSpec(reports_velocity_down=True))
+    damaged = dataclasses.replace(fault_free, stream=stream)
+    fused = replay(damaged, EstimatorPipeline(load_aircraft_params(), PipelineConfig(sensors=told)))
+    c = fused.pipeline.counters
+    assert c.gps_velocity_down >= n_fix - 2 and c.gps_velocity_down_unused == 0
+    assert not np.array_equal(_final_state(fused), _final_state(short_clean))
 
 
 def test_the_servo_clock_wrap_is_unwrapped(fault_free, short, short_clean):

@@ -141,6 +141,14 @@ def _main(args: argparse.Namespace) -> int:
         file=sys.stderr,
     )
     result = replay(log, pipeline, progress=True)
+    unused = pipeline.counters.gps_velocity_down_unused
+    if unused:
+        print(
+            f"replay: {unused} fixes carried a vertical velocity, not fused (the spec sheet's "
+            "receiver does not report one; --sensors with sensors.gps.reports_velocity_down: "
+            "true fuses it)",
+            file=sys.stderr,
+        )
     name = log.scenario or Path(args.tlog).stem
     summary = dataclasses.replace(
         summary_of(result, name),

@@ -168,9 +168,10 @@ class GpsSpec:
         velocity, about twice the horizontal one's, as receivers' sheets give it (0.05 m/s
         horizontal, 0.1 m/s vertical).
     reports_velocity_down : bool
-        Whether the simulated receiver reports that velocity. A receiver measures it, but
-        GPS_RAW_INT has no field for it: ArduPilot's and PX4's telemetry drop it (their logs
-        keep it). The estimator reads it wherever a fix carries it.
+        Whether the receiver reports that velocity: the simulated one sends it, and the
+        estimator told so fuses it. A receiver measures it, but GPS_RAW_INT has no field for
+        it: ArduPilot's and PX4's telemetry drop it (their logs keep it). Told false (the
+        default), the estimator leaves a log's ``vD`` out and counts it.
     """
 
     rate_hz: float = 1.0

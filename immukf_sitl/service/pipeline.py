@@ -109,12 +109,14 @@ class StreamCounters:
     predict-only steps (across gaps, and between the samples of a stream slower than the
     filter's step), ``slow_imu_steps`` the steps whose decisions were held because the IMU
     streamed below ``min_imu_rate_hz``. ``gps_velocity_down`` counts the fixes fused with
-    their vertical velocity (those whose source carries it).
+    their vertical velocity, ``gps_velocity_down_unused`` those that carried one the spec sheet
+    does not fuse (``sensors.gps.reports_velocity_down`` false: a log's receiver).
     """
 
     imu_samples: int = 0
     gps_fixes: int = 0
     gps_velocity_down: int = 0
+    gps_velocity_down_unused: int = 0
     actuator_samples: int = 0
     steps: int = 0
     out_of_order: int = 0
@@ -318,7 +320,10 @@ class EstimatorPipeline:
         """The newest queued fix not later than ``t_s`` (older ones are superseded).
 
         ``[pN, pE, pD, ground speed, course]``, and the vertical velocity after them where the
-        fix carries it (a finite one).
+        fix carries a finite one and the spec sheet says the receiver reports it
+        (``sensors.gps.reports_velocity_down``). A log's ``vD`` is not fused unless told so: on
+        the real-air model it biased the vertical prediction and declared healthy channels in
+        fault-free flight (docs/results/gps-velocity-down/); such fixes are counted.
         """
         fix = None
         while self._gps_queue and self._gps_queue[0].time_s <= t_s + 0.5 * IMU_PERIOD_S:
@@ -329,8 +334,11 @@ class EstimatorPipeline:
         observed = [north, east, down, fix.ground_speed_mps, fix.course_rad]
         velocity_down = fix.velocity_down_mps
         if velocity_down is not None and math.isfinite(velocity_down):
-            observed.append(velocity_down)
-            self.counters.gps_velocity_down += 1
+            if self.config.sensors.gps.reports_velocity_down:
+                observed.append(velocity_down)
+                self.counters.gps_velocity_down += 1
+            else:
+                self.counters.gps_velocity_down_unused += 1
         return np.array(observed)
 
     def on_imu(self, sample: ImuSample) -> EstimateOutput | None:
