@@ -27,6 +27,7 @@ from immukf_sitl.estimation.sigma_points import (
     sigma_points,
     unscented_transform,
 )
+from immukf_sitl.estimation.symmetry import StateSymmetry
 from immukf_sitl.estimation.ukf import UkfEstimate, UnscentedKalmanFilter
 
 __all__ = [
@@ -43,6 +44,7 @@ __all__ = [
     "MeasurementModel",
     "ProcessModel",
     "SampleGate",
+    "StateSymmetry",
     "ScaledSigmaPoints",
     "UkfEstimate",
     "UnscentedKalmanFilter",

@@ -16,6 +16,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from immukf_sitl.estimation.symmetry import StateSymmetry
+
 #: ``f(t_s, x, u, v) -> x_next`` (eq. 1) from ``t_s``, the start of the step; ``v`` is ``None``
 #: in the additive-noise form.
 ProcessFn = Callable[[float, np.ndarray, np.ndarray, "np.ndarray | None"], np.ndarray]
@@ -79,6 +81,9 @@ class ProcessModel:
         of the others, but no measurement moves their mean or shrinks their own covariance
         (their rows of the gain are zero). For nuisance states the data cannot separate from
         others, e.g. a GPS receiver's slowly wandering error beside the position.
+    symmetry : StateSymmetry, optional
+        A symmetry of ``f`` the measurements do not observe: each update carries the
+        covariance along it to the updated mean (:mod:`immukf_sitl.estimation.symmetry`).
     """
 
     f: ProcessFn
@@ -88,6 +93,7 @@ class ProcessModel:
     angle_idx: tuple[int, ...] = ()
     state_noise_cov: np.ndarray | None = None
     consider_idx: tuple[int, ...] = ()
+    symmetry: StateSymmetry | None = None
     noise_sqrt: np.ndarray = field(init=False, repr=False)
 
     def __post_init__(self) -> None:

@@ -50,6 +50,7 @@ __all__ = [
     "GPS_ERROR",
     "GUST",
     "GYRO_BIAS",
+    "HEADING",
     "MOMENT",
     "N_AUGMENTED",
     "N_RIGID",
@@ -59,6 +60,7 @@ __all__ = [
     "AugmentedAeroModel",
     "ModelError",
     "model_error_sigmas",
+    "heading_tangent",
 ]
 
 N_RIGID = 12
@@ -141,6 +143,44 @@ class AugmentedAeroModel:
         """
         x = np.asarray(x, dtype=float)
         return self.aero.gps_with(x[:N_RIGID], x[N_RIGID:], velocity_down)
+
+
+#: the heading's row of the state (``psi_rad``)
+HEADING = AeroModel.state_labels.index("psi_rad")
+
+
+def heading_tangent(x: np.ndarray) -> np.ndarray:
+    """``(B, nx)``: how the states of means ``x (B, nx)`` move per radian of heading unobserved.
+
+    Turning the heading by ``s`` while the ground velocity ``v_n`` and the body's air velocity
+    stay (all the IMU and the GPS see in straight flight) turns the body-axis ground velocity,
+    ``v_b = R_bn(psi + s) v_n``, and the wind about the ground velocity,
+    ``w = v_n - R_z(s) (v_n - w)``: per radian, ``-R_bn (e_z x v_n)`` and
+    ``-e_z x (v_n - w)``. Every other state (offsets appended after the model's too) stays.
+    """
+    x = np.asarray(x, dtype=float)
+    out = np.zeros(x.shape)
+    phi, theta, psi = x[:, 6], x[:, 7], x[:, 8]
+    sf, cf, st, ct, sp, cp = (
+        np.sin(phi),
+        np.cos(phi),
+        np.sin(theta),
+        np.cos(theta),
+        np.sin(psi),
+        np.cos(psi),
+    )
+    r_nb = np.empty((x.shape[0], 3, 3))  # Rz(psi) Ry(theta) Rx(phi), as earth.body_to_ned
+    r_nb[:, 0] = np.stack([ct * cp, sf * st * cp - cf * sp, cf * st * cp + sf * sp], axis=1)
+    r_nb[:, 1] = np.stack([ct * sp, sf * st * sp + cf * cp, cf * st * sp - sf * cp], axis=1)
+    r_nb[:, 2] = np.stack([-st, sf * ct, cf * ct], axis=1)
+    v_n = np.einsum("bij,bj->bi", r_nb, x[:, 3:6])
+    turned = np.stack([-v_n[:, 1], v_n[:, 0], np.zeros(len(x))], axis=1)  # e_z x v_n
+    out[:, 3:6] = -np.einsum("bji,bj->bi", r_nb, turned)
+    out[:, HEADING] = 1.0
+    air_n = v_n - x[:, N_RIGID + WIND.start : N_RIGID + WIND.stop]
+    out[:, N_RIGID + WIND.start] = air_n[:, 1]  # -(e_z x air_n)
+    out[:, N_RIGID + WIND.start + 1] = -air_n[:, 0]
+    return out
 
 
 @dataclass(frozen=True)

@@ -49,6 +49,7 @@ from immukf_sitl.estimation import (
     fault_mode_noise_var,
 )
 from immukf_sitl.estimation.fault_modes import FAILURE_PRIOR, IMU_CHANNELS, N_IMU
+from immukf_sitl.estimation.symmetry import StateSymmetry
 from immukf_sitl.models.aero import AeroModel
 from immukf_sitl.models.airframe import AirframeUncertainty
 from immukf_sitl.models.augmented import (
@@ -56,10 +57,12 @@ from immukf_sitl.models.augmented import (
     GPS_ERROR,
     GUST,
     GYRO_BIAS,
+    HEADING,
     MOMENT,
     N_RIGID,
     WIND,
     AugmentedAeroModel,
+    heading_tangent,
 )
 from immukf_sitl.models.earth import body_to_ned
 from immukf_sitl.models.sensors import SensorSpec
@@ -196,7 +199,7 @@ class ModelDynamics(ABC):
 
         return ProcessModel(
             f, n + k, core.noise_cov, padded(core.additive_noise_cov), core.angle_idx,
-            padded(core.state_noise_cov), core.consider_idx,
+            padded(core.state_noise_cov), core.consider_idx, core.symmetry,
         )  # fmt: skip
 
     def _with_offset(self, mean: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -749,6 +752,8 @@ class _RealAirDynamics(ModelDynamics):
             angle_idx=flown.angle_indices,
             state_noise_cov=at_start,
             consider_idx=consider_indices(model.consider_states),
+            # heading and wind are seen together until a turn (estimation.symmetry)
+            symmetry=StateSymmetry(HEADING, heading_tangent),
         )
         self._offset_state(sensors, model)
         self.adapter: TurbulenceAdapter | None = None

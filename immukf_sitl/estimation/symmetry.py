@@ -1,0 +1,67 @@
+"""A direction the measurements cannot see, carried with the mean so that no update pretends to.
+
+A model can have a one-parameter symmetry that its outputs do not break: turning the whole world
+about the vertical (heading, wind and ground velocity together) leaves every reading of a
+fixed-wing aircraft in straight flight as it was, so heading and wind are known only together
+until a turn. Along such a symmetry the states lie on a curve, not a line: the direction in which
+they may move together (the curve's tangent) depends on where the mean is. A Kalman update moves
+the mean, and its covariance keeps the tangent of the mean it was computed at; the next update
+then reads the mismatch between that old tangent and the new one as information, and the heading
+collapses without being observed. On the real-air model the heading of a flight aligned in
+10 m/s of wind was 21 deg off at a sigma of 2 deg after one second (and 12 deg off at 1.9 deg at
+10 s in calm air, until the first turn declared a healthy gyro).
+
+The remedy is that of the observability-constrained and invariant filters (Huang, Mourikis and
+Roumeliotis, IJRR 29(5), 2010; Barrau and Bonnabel, IEEE TAC 62(4), 2017), in its smallest form:
+write the state as the symmetry's parameter ``s`` and the rest, ``x = Phi_s(x0 + d)``, whose
+Jacobian at ``s = 0`` is ``J(x) = I + (n(x) - e_a) e_a'`` with ``n(x)`` the tangent at ``x``
+(``n_a = 1``, ``a`` the parameter's own state, e.g. the heading). A covariance held in those
+coordinates is the same at any mean; moved from ``x`` to ``x+`` it is
+``P+ = T P T'``, ``T = J(x+) J(x)^-1 = I + (n(x+) - n(x)) e_a'``: the parameter's column of the
+covariance is carried to the tangent at the updated mean. The dynamics of a symmetric model map
+one tangent onto the next by themselves, so only the update needs it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+#: ``tangent(x) -> n``: ``(B, nx)`` means to their symmetry's tangent, ``n[:, axis] = 1``
+TangentFn = Callable[[np.ndarray], np.ndarray]
+
+
+@dataclass(frozen=True)
+class StateSymmetry:
+    """A symmetry of a model that its measurements leave unobserved.
+
+    Parameters
+    ----------
+    axis : int
+        The state that is the symmetry's parameter (its tangent's component there is 1).
+    tangent : TangentFn
+        ``(B, nx) -> (B, nx)``: how each state moves per unit of the parameter, at each mean.
+    """
+
+    axis: int
+    tangent: TangentFn
+
+    def carried(self, before: np.ndarray, after: np.ndarray, cov: np.ndarray) -> np.ndarray:
+        """``cov`` ``(B, nx, nx)`` of means moved from ``before`` to ``after`` ``(B, nx)``.
+
+        ``T P T'`` with ``T = I + d e_a'``, ``d = n(after) - n(before)`` (module docstring). A
+        filter whose mean is not finite is left as it is (the caller resets it).
+        """
+        d = self.tangent(after) - self.tangent(before)
+        d[~np.isfinite(d).all(axis=1)] = 0.0
+        column = cov[:, :, self.axis]  # P e_a
+        var = cov[:, self.axis, self.axis][:, None, None]
+        out = (
+            cov
+            + d[:, :, None] * column[:, None, :]
+            + column[:, :, None] * d[:, None, :]
+            + var * d[:, :, None] * d[:, None, :]
+        )
+        return 0.5 * (out + np.swapaxes(out, 1, 2))
