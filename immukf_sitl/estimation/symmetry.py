@@ -1,15 +1,16 @@
 """A direction the measurements cannot see, carried with the mean so that no update pretends to.
 
-A model can have a one-parameter symmetry that its outputs do not break: turning the whole world
-about the vertical (heading, wind and ground velocity together) leaves every reading of a
-fixed-wing aircraft in straight flight as it was, so heading and wind are known only together
-until a turn. Along such a symmetry the states lie on a curve, not a line: the direction in which
-they may move together (the curve's tangent) depends on where the mean is. A Kalman update moves
-the mean, and its covariance keeps the tangent of the mean it was computed at; the next update
-then reads the mismatch between that old tangent and the new one as information, and the heading
-collapses without being observed. On the real-air model the heading of a flight aligned in
-10 m/s of wind was 21 deg off at a sigma of 2 deg after one second (and 12 deg off at 1.9 deg at
-10 s in calm air, until the first turn declared a healthy gyro).
+A model can have a one-parameter symmetry that its outputs do not break: turning the heading
+and, about the ground velocity, the wind by the same angle leaves every reading of a fixed-wing
+aircraft in straight flight as it was (the air velocity in body axes and the ground velocity
+stay), so heading and wind are known only together until a turn. Along such a symmetry the
+states lie on a curve, not a line: the direction in which they may move together (the curve's
+tangent) depends on where the mean is. A Kalman update moves the mean, and its covariance keeps
+the tangent of the mean it was computed at; the next update then reads the mismatch between that
+old tangent and the new one as information, and the heading collapses without being observed. On
+the real-air model the heading of a flight aligned in 10 m/s of wind was 21 deg off at a sigma
+of 2 deg after one second (and 12 deg off at 1.9 deg at 10 s in calm air, until the first turn
+declared a healthy gyro).
 
 The remedy is that of the observability-constrained and invariant filters (Huang, Mourikis and
 Roumeliotis, IJRR 29(5), 2010; Barrau and Bonnabel, IEEE TAC 62(4), 2017), in its smallest form:
@@ -18,8 +19,9 @@ Jacobian at ``s = 0`` is ``J(x) = I + (n(x) - e_a) e_a'`` with ``n(x)`` the tang
 (``n_a = 1``, ``a`` the parameter's own state, e.g. the heading). A covariance held in those
 coordinates is the same at any mean; moved from ``x`` to ``x+`` it is
 ``P+ = T P T'``, ``T = J(x+) J(x)^-1 = I + (n(x+) - n(x)) e_a'``: the parameter's column of the
-covariance is carried to the tangent at the updated mean. The dynamics of a symmetric model map
-one tangent onto the next by themselves, so only the update needs it.
+covariance is carried to the tangent at the updated mean. Where the dynamics are symmetric they
+map one tangent onto the next by themselves, and where they are not (an aircraft's acceleration
+turns with its heading) the difference is information, so only the update needs the transport.
 """
 
 from __future__ import annotations
