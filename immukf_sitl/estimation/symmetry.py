@@ -29,6 +29,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 #: ``tangent(x) -> n``: ``(B, nx)`` means to their symmetry's tangent, ``n[:, axis] = 1``
@@ -56,14 +57,30 @@ class StateSymmetry:
         ``T P T'`` with ``T = I + d e_a'``, ``d = n(after) - n(before)`` (module docstring). A
         filter whose mean is not finite is left as it is (the caller resets it).
         """
+        out = np.array(cov, dtype=float, order="C")
+        self.carry(before, after, out)
+        return out
+
+    def carry(self, before: np.ndarray, after: np.ndarray, cov: np.ndarray) -> None:
+        """:meth:`carried` in place on a C-contiguous ``cov``."""
         d = self.tangent(after) - self.tangent(before)
         d[~np.isfinite(d).all(axis=1)] = 0.0
-        column = cov[:, :, self.axis]  # P e_a
-        var = cov[:, self.axis, self.axis][:, None, None]
-        out = (
-            cov
-            + d[:, :, None] * column[:, None, :]
-            + column[:, :, None] * d[:, None, :]
-            + var * d[:, :, None] * d[:, None, :]
-        )
-        return 0.5 * (out + np.swapaxes(out, 1, 2))
+        _carry(cov, d, self.axis)
+
+
+@numba.njit(cache=True)
+def _carry(cov: np.ndarray, d: np.ndarray, axis: int) -> None:
+    """``cov[b] <- T cov[b] T'``, ``T = I + d[b] e_axis'``, in place (compiled: every update)."""
+    nx = cov.shape[1]
+    column = np.empty(nx)
+    for b in range(cov.shape[0]):
+        var = cov[b, axis, axis]
+        for i in range(nx):
+            column[i] = cov[b, i, axis]
+        for i in range(nx):
+            di = d[b, i]
+            for j in range(i, nx):
+                dj = d[b, j]
+                value = cov[b, i, j] + di * column[j] + column[i] * dj + var * di * dj
+                cov[b, i, j] = value
+                cov[b, j, i] = value

@@ -405,7 +405,7 @@ class UnscentedKalmanFilter:
         if self._consider.size:  # eqs. (22)-(23), consider rows of K zeroed: x_c, P_cc kept
             kern.keep_consider(self._consider, pred_mean, pred_cov, new_mean, new_cov)
         if proc.symmetry is not None:  # the unobserved direction moved with the mean
-            new_cov[...] = proc.symmetry.carried(pred_mean, new_mean, new_cov)
+            proc.symmetry.carry(pred_mean, new_mean, new_cov)
         diag.symmetrised += 2 * batch  # P_zz and P(k+1|k+1), symmetric by construction
         diag.outlier_innovations += int(np.count_nonzero(nis > outlier_nis_threshold(nz)))
 

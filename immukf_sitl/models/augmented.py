@@ -38,6 +38,7 @@ import math
 from dataclasses import dataclass, field
 from typing import ClassVar
 
+import numba
 import numpy as np
 
 from immukf_sitl.models import aero_kernels
@@ -157,30 +158,35 @@ def heading_tangent(x: np.ndarray) -> np.ndarray:
     ``v_b = R_bn(psi + s) v_n``, and the wind about the ground velocity,
     ``w = v_n - R_z(s) (v_n - w)``: per radian, ``-R_bn (e_z x v_n)`` and
     ``-e_z x (v_n - w)``. Every other state (offsets appended after the model's too) stays.
+    Compiled: it runs after every update of every mode.
     """
-    x = np.asarray(x, dtype=float)
+    x = np.ascontiguousarray(x, dtype=float)
     out = np.zeros(x.shape)
-    phi, theta, psi = x[:, 6], x[:, 7], x[:, 8]
-    sf, cf, st, ct, sp, cp = (
-        np.sin(phi),
-        np.cos(phi),
-        np.sin(theta),
-        np.cos(theta),
-        np.sin(psi),
-        np.cos(psi),
-    )
-    r_nb = np.empty((x.shape[0], 3, 3))  # Rz(psi) Ry(theta) Rx(phi), as earth.body_to_ned
-    r_nb[:, 0] = np.stack([ct * cp, sf * st * cp - cf * sp, cf * st * cp + sf * sp], axis=1)
-    r_nb[:, 1] = np.stack([ct * sp, sf * st * sp + cf * cp, cf * st * sp - sf * cp], axis=1)
-    r_nb[:, 2] = np.stack([-st, sf * ct, cf * ct], axis=1)
-    v_n = np.einsum("bij,bj->bi", r_nb, x[:, 3:6])
-    turned = np.stack([-v_n[:, 1], v_n[:, 0], np.zeros(len(x))], axis=1)  # e_z x v_n
-    out[:, 3:6] = -np.einsum("bji,bj->bi", r_nb, turned)
-    out[:, HEADING] = 1.0
-    air_n = v_n - x[:, N_RIGID + WIND.start : N_RIGID + WIND.stop]
-    out[:, N_RIGID + WIND.start] = air_n[:, 1]  # -(e_z x air_n)
-    out[:, N_RIGID + WIND.start + 1] = -air_n[:, 0]
+    _heading_tangent(x, N_RIGID + WIND.start, out)
     return out
+
+
+@numba.njit(cache=True)
+def _heading_tangent(x: np.ndarray, wind: int, out: np.ndarray) -> None:
+    """:func:`heading_tangent` into ``out`` (zeros), ``wind`` the row of the north wind."""
+    for b in range(x.shape[0]):
+        sf, cf = math.sin(x[b, 6]), math.cos(x[b, 6])
+        st, ct = math.sin(x[b, 7]), math.cos(x[b, 7])
+        sp, cp = math.sin(x[b, 8]), math.cos(x[b, 8])
+        # R_nb = Rz(psi) Ry(theta) Rx(phi), its north and east rows (earth.body_to_ned)
+        r00, r01, r02 = ct * cp, sf * st * cp - cf * sp, cf * st * cp + sf * sp
+        r10, r11, r12 = ct * sp, sf * st * sp + cf * cp, cf * st * sp - sf * cp
+        u, v, w = x[b, 3], x[b, 4], x[b, 5]
+        vn = r00 * u + r01 * v + r02 * w
+        ve = r10 * u + r11 * v + r12 * w
+        # -R_bn (e_z x v_n), e_z x v_n = (-ve, vn, 0)
+        out[b, 3] = -(r00 * -ve + r10 * vn)
+        out[b, 4] = -(r01 * -ve + r11 * vn)
+        out[b, 5] = -(r02 * -ve + r12 * vn)
+        out[b, HEADING] = 1.0
+        # -(e_z x (v_n - w)) = (air_e, -air_n, 0)
+        out[b, wind] = ve - x[b, wind + 1]
+        out[b, wind + 1] = -(vn - x[b, wind])
 
 
 @dataclass(frozen=True)
