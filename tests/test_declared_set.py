@@ -7,7 +7,12 @@ import pytest
 from scipy.stats import norm
 
 from immukf_sitl.estimation import FaultMode, bank_modes
-from immukf_sitl.service.declared_set import DeclaredSetDetector, NamedFailure, shows_life
+from immukf_sitl.service.declared_set import (
+    _DECISIVE_NATS,
+    DeclaredSetDetector,
+    NamedFailure,
+    shows_life,
+)
 from immukf_sitl.service.detection import DetectorConfig
 
 SIGMAS = np.array([0.0245] * 3 + [0.00227] * 3)
@@ -289,16 +294,48 @@ def test_the_spike_that_lifts_a_slot_to_the_threshold_is_its_first():
         assert got == ([] if build_up else [("detected", "q", 0.4)]), build_up
 
 
-def test_one_spike_of_a_leading_slot_does_not_declare_its_channel():
+def test_a_decisive_first_spike_declares_after_the_dwell():
+    """The tuning draw's calm p train in small: its first spike lifts slot q from the floor
+    by thousands of nats on the channel slot 0 reads 90 sigmas off, and the channel is
+    declared once the slot has held the threshold for the dwell, without a second spike."""
+    rng = np.random.default_rng(7)
+    det = DeclaredSetDetector(DetectorConfig(dwell_s=0.1, settle_s=0.0), 0.0)
+    events = []
+    for k in range(100):
+        p = 0.99 if k >= 20 else 1e-9
+        nu = _innovations(rng, {(0, Q): 90.0} if k == 20 else None)
+        ratio = _q_evidence(9000.0 if k == 20 else 0.0)
+        events += det.update(k * 0.01, _probs(5, p), _imu(rng), SIGMAS, nu, None, ratio)
+    assert [(e.kind, e.mode.name) for e in events] == [("detected", "q")]
+    assert 0.3 <= events[0].t_s <= 0.31  # the dwell after 0.20 s, to a step's rounding
+
+
+@pytest.mark.parametrize(
+    ("nats", "base_off_sigmas", "declared"),
+    [
+        (18.0, {(0, Q): 30.0}, False),  # within the Markov bound: a tail sample could give it
+        (19.0, {(0, Q): 30.0}, True),  # beyond it, on the channel slot 0 reads worst
+        (50.0, {(0, Q): 30.0, (0, X): 40.0}, False),  # slot 0 reads x worse: not q's spike
+        (50.0, {}, False),  # q no worse read than the others
+    ],
+)
+def test_one_spike_declares_its_channel_only_beyond_chance(nats, base_off_sigmas, declared):
+    """Slot q leads at 0.99 and keeps one outlier out, ``nats`` ahead of the base on its
+    sample. One sample passes ``h`` nats of likelihood ratio with probability at most
+    ``exp(-h)`` when the base is right: beyond ``_DECISIVE_NATS`` (18.7 nats, 5 % for one false
+    declaration over six slots at 100 Hz in 3 h) one spike declares its channel after the dwell,
+    provided slot 0 read that channel worst on the sample; short of it, it takes a second."""
+    assert 18.0 < _DECISIVE_NATS < 19.0
     rng = np.random.default_rng(6)
     det = DeclaredSetDetector(DetectorConfig(dwell_s=0.1, settle_s=0.0), 0.0)
     events = []
     for k in range(300):
         spike = _outliers((5, Q)) if k == 50 else _outliers()
-        ratio = _q_evidence(50.0 if k == 50 else 0.0)
-        nu = _innovations(rng)
+        ratio = _q_evidence(nats if k == 50 else 0.0)
+        nu = _innovations(rng, base_off_sigmas if k == 50 else None)
         events += det.update(k * 0.01, _probs(5, 0.99), _imu(rng), SIGMAS, nu, None, ratio, spike)
-    assert events == []
+    got = [(e.kind, e.mode.name, round(e.t_s, 2)) for e in events]
+    assert got == ([("detected", "q", 0.5)] if declared else []), got
 
 
 def _rest(slot: int, nats_per_fix: float, nis: float = 5.0):

@@ -33,7 +33,10 @@ channel's failure: the mode ``D + c`` is always in the bank.
   sample that lifts the slot to the threshold by as much on its own (the first spike of a
   train, which no learnt offset yet calls an outlier); a *second* spike while the slot holds
   the threshold confirms the failure as the sustained test's "without its largest sample"
-  does.
+  does. One spike confirms itself when its sample alone puts the slot ``_REST_NATS`` ahead
+  (the slow test's Markov bound, a one-sample ratio now) on the trusted channel slot 0 reads
+  worst: no healthy sensor's tail gets there but by a chance the bound prices, and a step
+  on another channel that some slot explains loosely leaves that channel worst.
 - **Declare on a handed-over lead**: when the slots of new failures *together* hold
   ``threshold`` for ``dwell_s`` but the lead passes between them, the one whose
   log-likelihoods over the window beat slot 0's and each other slot's by ``ln(q / (1 - q))``
@@ -118,6 +121,10 @@ _REST_NATS = math.log(6 * 100 * 3 * 3600 / 0.05)
 #: odds) that declare it while its slot holds the threshold: the first may be one tail sample,
 #: a second confirms (the sustained test's largest sample)
 _SPIKES_TO_DECLARE = 2
+#: one spike that declares on its own: a one-sample likelihood ratio passes ``h`` nats with
+#: probability at most ``exp(-h)`` when the base is right (Markov's inequality, as the slow
+#: test's), so six slots at 100 Hz for 3 h pass it by chance with 5 % in all
+_DECISIVE_NATS = _REST_NATS
 
 
 @dataclass(frozen=True)
@@ -355,12 +362,19 @@ class DeclaredSetDetector:
         self._window.push(readings, residuals)
         spike = np.zeros(N_IMU + 1, dtype=bool)  # slots whose outlier this sample is a spike
         jump = np.zeros(N_IMU + 1, dtype=bool)  # slots this one sample puts far ahead of slot 0
+        decisive = np.zeros(N_IMU + 1, dtype=bool)  # ... and beyond chance on their channel
         if log_likelihoods is not None:
             ratio = np.asarray(log_likelihoods, dtype=float)
             self._evidence.append(ratio - ratio[0])
             jump = self._evidence[-1] >= self._sustained_nats
             if outliers is not None:
                 spike[1:] = np.diagonal(outliers[1:]) & jump[1:]
+            if residuals is not None:
+                # a spike beyond the Markov bound on the trusted channel the base reads worst
+                trusted = [(self._bits >> c & 1) == 0 for c in range(N_IMU)]
+                worst = np.zeros(N_IMU + 1, dtype=bool)
+                worst[1 + int(np.argmax(np.where(trusted, residuals[0], -np.inf)))] = any(trusted)
+                decisive = worst & (self._evidence[-1] >= _DECISIVE_NATS)
         if rest is not None and rest[2] > 0:
             ratios, nis, dof = rest
             self._rest.append((t_s, _beyond_the_others(ratios), np.asarray(nis), dof))
@@ -382,7 +396,8 @@ class DeclaredSetDetector:
                 lifted = j not in self._since and jump[j] and not release
                 self._since.setdefault(j, t_s)
                 if spike[j] or lifted:
-                    self._outliers[j] = self._outliers.get(j, 0) + 1
+                    count = _SPIKES_TO_DECLARE if decisive[j] else 1
+                    self._outliers[j] = self._outliers.get(j, 0) + count
             else:
                 self._since.pop(j, None)
                 self._outliers.pop(j, None)
