@@ -369,12 +369,9 @@ class DeclaredSetDetector:
             jump = self._evidence[-1] >= self._sustained_nats
             if outliers is not None:
                 spike[1:] = np.diagonal(outliers[1:]) & jump[1:]
-            if residuals is not None:
-                # a spike beyond the Markov bound on the trusted channel the base reads worst
-                trusted = [(self._bits >> c & 1) == 0 for c in range(N_IMU)]
-                worst = np.zeros(N_IMU + 1, dtype=bool)
-                worst[1 + int(np.argmax(np.where(trusted, residuals[0], -np.inf)))] = any(trusted)
-                decisive = worst & (self._evidence[-1] >= _DECISIVE_NATS)
+            beyond = self._evidence[-1] >= _DECISIVE_NATS  # rare: only then the residuals
+            if residuals is not None and beyond.any():
+                decisive = beyond & self._worst_read(residuals[0])
         if rest is not None and rest[2] > 0:
             ratios, nis, dof = rest
             self._rest.append((t_s, _beyond_the_others(ratios), np.asarray(nis), dof))
@@ -449,6 +446,14 @@ class DeclaredSetDetector:
             p = -math.expm1(-nats)  # the window passes by chance with at most exp(-nats)
             return [DetectionEvent("detected", mode, t_s, p, declared_after=self._after())]
         return self._unisolated(t_s, probabilities)
+
+    def _worst_read(self, base_residuals: np.ndarray) -> np.ndarray:
+        """The slot of the trusted channel slot 0 reads worst, as a mask (none if all declared)."""
+        out = np.zeros(N_IMU + 1, dtype=bool)
+        trusted = (self._bits >> np.arange(N_IMU)) & 1 == 0
+        if trusted.any():
+            out[1 + int(np.argmax(np.where(trusted, base_residuals, -np.inf)))] = True
+        return out
 
     def _new_failure_slots(self) -> list[int]:
         """The slots that add a failure to the declared set (one per channel not declared)."""
