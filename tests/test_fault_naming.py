@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -264,6 +265,39 @@ def test_a_drift_too_slow_for_five_seconds_is_named_at_the_last_look():
         pulled = h + 0.3 * (1.0 - np.exp(-(t - t[0]) / 3.0))
         bias = _named(3, t, healthy + 0.3, pulled, s2, last_look_s=15.0)
         assert bias[-1][0] <= 500 and bias[-1][1].kind == "bias", (seed, bias)
+
+
+def _wander(rng, n, sigma, tau_s):
+    """First-order Gauss-Markov samples at 100 Hz: stationary ``sigma``, time constant ``tau_s``."""
+    a = math.exp(-0.01 / tau_s)
+    w = np.empty(n)
+    w[0] = sigma * rng.standard_normal()
+    for k in range(1, n):
+        w[k] = a * w[k - 1] + sigma * math.sqrt(1.0 - a * a) * rng.standard_normal()
+    return w
+
+
+def test_a_drift_gets_the_rate_of_its_last_look():
+    # the re-based prediction wanders off the truth by its own sigma (0.02 rad/s) for seconds
+    # at a time (time constant 3 s, as a pitch gyro's base in light air did). A line's slope
+    # over T >> tau through such a wander errs by sqrt(12 sigma^2 2 tau / T^3): 0.0029
+    # rad/s/s over the last look's 15 s, a fifth of a 0.015 rad/s/s drift; over the second
+    # look's 5 s (not >> tau) more
+    rate, errors = 0.015, {500: [], 1500: []}
+    slope_sigma = math.sqrt(12.0 * 0.02**2 * 2.0 * 3.0 / 15.0**3)
+    for seed in range(12):
+        rng = np.random.default_rng(300 + seed)
+        t, truth, h, healthy, s2 = _slow_flight(rng, 16.0)
+        h = truth + _wander(rng, t.size, 0.02, 3.0)
+        names = _named(3, t, healthy + rate * (t - 27.0), h, s2, last_look_s=15.0)
+        assert names[-1][0] == 1500 and names[-1][1].kind == "drift", (seed, names)
+        assert names[-1][1].size == pytest.approx(rate, abs=3.0 * slope_sigma), (seed, names)
+        for k, name in names:
+            if k in errors:
+                errors[k].append(abs(name.size / rate - 1.0))
+    assert len(errors[500]) >= 5
+    rms = {k: math.sqrt(np.mean(np.square(v))) for k, v in errors.items()}
+    assert rms[1500] < min(rms[500], 1.5 * slope_sigma / rate), rms
 
 
 def test_the_namer_names_a_slow_drift_twice_and_a_bias_once():

@@ -76,7 +76,12 @@ train quiet in its first second (which a gain of nearly 1 explained) has spiked.
 the prediction toward the reading only ever shrinks the residual, so a residual that keeps
 growing away from zero, by more than the drift rule's sigmas, is the fault's own ramp. The
 failure is named again where the whole window names it otherwise, or a drift at another
-rate.
+rate. A bias or a drift the second look names is looked at a last time, :data:`LAST_LOOK_S`
+after the declaration, over the whole window: a bias is named anew if that finds a drift or a
+gain, a drift gets the rate of those seconds. The re-based prediction wanders off the truth
+by about its own sigma for seconds at a time, and over five seconds that wander's slope can
+be as large as the drift's (a pitch-gyro drift of -0.015 rad/s^2 in light air read -0.030);
+over fifteen it is a third of that, or less.
 
 A name whose fitted deviation from the healthy reading stays inside the band a healthy sensor
 reads off the truth (``bands``: 5 sigmas of noise and turn-on bias, the band that defines a
@@ -118,8 +123,9 @@ DRIFT_SIGMAS = 3.0
 #: how long after a declaration a failure named a bias, a drift, a gain or a noise is looked at
 #: again (s)
 SECOND_LOOK_S = 5.0
-#: how long after a declaration a failure its second look still names a bias is looked at a
-#: last time (s): a slow drift moves its channel by its prediction's sigmas only over seconds
+#: how long after a declaration a failure its second look names a bias or a drift is looked at
+#: a last time (s): a slow drift moves its channel by its prediction's sigmas only over seconds,
+#: and a drift's rate read over them errs less than over the second look's
 LAST_LOOK_S = 15.0
 #: the name of a window whose best explanation stays within what a healthy sensor reads (the
 #: first second of a spike train that has not spiked again, a gain on a channel holding still):
@@ -573,7 +579,9 @@ class FaultNamer:
     window does not lose the first's name). A failure named a bias, a drift or a gain keeps
     being gathered until ``second_look_s`` after its declaration, and is named again where
     :func:`second_look` names it otherwise (a drift: again, with the rate of the seconds); a
-    noise is named again with its factor over those seconds.
+    noise is named again with its factor over those seconds. A bias or a drift is then looked
+    at a last time at ``last_look_s``: a bias renamed where that finds a drift or a gain, a
+    drift given the rate of those seconds.
 
     Parameters
     ----------
@@ -589,7 +597,7 @@ class FaultNamer:
         the spec sheet). A first second whose best name stays within it is named over the
         second look's seconds instead (None: always named at the first second).
     last_look_s : float
-        When a failure its second look names a bias is looked at a last time
+        When a failure its second look names a bias or a drift is looked at a last time
         (:data:`LAST_LOOK_S`); at most ``second_look_s``: never.
     """
 
@@ -611,7 +619,7 @@ class FaultNamer:
         self._baselines: dict[int, Roughness | None] = {}  # channel -> roughness before it
         self._samples: dict[int, list[tuple[float, float, float, float]]] = {}
         self._first: dict[int, FailureName] = {}  # channel -> first name, waiting for a second look
-        self._last: set[int] = set()  # channels named a bias, waiting for the last look
+        self._last: dict[int, str] = {}  # channel -> the bias or drift its last look re-reads
 
     @property
     def pending(self) -> bool:
@@ -638,8 +646,9 @@ class FaultNamer:
     def looking(self, channel: int) -> bool:
         """Whether ``channel``'s failure waits to be named, or to be looked at again.
 
-        A bias waiting for its last look is not: its name is final unless that look finds a
-        drift or a gain, which it then names anew.
+        A bias or a drift waiting for its last look is not: a bias's name is final unless that
+        look finds a drift or a gain, which it then names anew, and a drift's is final but for
+        its rate, read again over the look's seconds.
         """
         return channel in self._pending and channel not in self._last
 
@@ -649,7 +658,7 @@ class FaultNamer:
             self._pending.pop(c, None)
             self._samples.pop(c, None)
             self._first.pop(c, None)
-            self._last.discard(c)
+            self._last.pop(c, None)
             self._baselines.pop(c, None)
 
     def observe(
@@ -682,9 +691,10 @@ class FaultNamer:
             baseline = self._baselines.get(i)
             band = None if self.bands is None else float(self.bands[i])
             if looking_last:
+                named = self._last[i]
                 self.cancel(i)
                 last = second_look(t, zs, hs, s2, sigma, band, baseline)
-                if last.kind != "bias":
+                if (last.kind != "bias") if named == "bias" else (last.kind == "drift"):
                     out.append((i, last))
                 continue
             if looking_again:
@@ -702,8 +712,8 @@ class FaultNamer:
                 again = second_look(t, zs, hs, s2, sigma, band, baseline)
                 if again.kind != first.kind or again.kind == "drift":
                     out.append((i, again))
-                if again.kind == "bias" and self.last_look_s > self.second_look_s:
-                    self._last.add(i)
+                if again.kind in ("bias", "drift") and self.last_look_s > self.second_look_s:
+                    self._last[i] = again.kind
                 else:
                     self.cancel(i)
                 continue
