@@ -81,7 +81,8 @@ after the declaration, over the whole window: a bias is named anew if that finds
 gain, a drift gets the rate of those seconds. The re-based prediction wanders off the truth
 by about its own sigma for seconds at a time, and over five seconds that wander's slope can
 be as large as the drift's (a pitch-gyro drift of -0.015 rad/s^2 in light air read -0.030);
-over fifteen it is a third of that, or less.
+a line's slope through a wander shorter than the window errs as its length to the power
+-1.5, five times less over fifteen seconds (that drift then read -0.021).
 
 A name whose fitted deviation from the healthy reading stays inside the band a healthy sensor
 reads off the truth (``bands``: 5 sigmas of noise and turn-on bias, the band that defines a
@@ -694,7 +695,8 @@ class FaultNamer:
                 named = self._last[i]
                 self.cancel(i)
                 last = second_look(t, zs, hs, s2, sigma, band, baseline)
-                if (last.kind != "bias") if named == "bias" else (last.kind == "drift"):
+                # a bias is named anew by a drift or a gain; a drift keeps its name, not its rate
+                if last.kind == "drift" if named == "drift" else last.kind != "bias":
                     out.append((i, last))
                 continue
             if looking_again:
