@@ -571,3 +571,17 @@ def test_a_lead_handed_between_failure_slots_is_settled_by_the_window_evidence(
     assert [e.mode.name for e in events if e.kind == "detected"] == ([declared] if declared else [])
     if declared:  # the dwell counts from the first sample of the bank's certainty
         assert events[0].t_s == pytest.approx(0.2)
+
+
+def test_what_the_slow_test_declared_is_released_on_the_fixes():
+    """r declared at the GPS fixes is the declared set the fixes release (its recovery slot
+    scored on them alone); released and declared again by the probabilities, it is not."""
+    det = DeclaredSetDetector(DetectorConfig(settle_s=0.0), 0.0)
+    assert det.declared_slowly is None
+    events = _fly_fixes(det, 4.0, _rest(6, 30.0), np.random.default_rng(11))
+    assert [(e.kind, e.mode.name) for e in events] == [("detected", "r")]
+    assert det.declared_slowly == FaultMode.from_name("r")
+    det._change(5)  # released
+    assert det.declared_slowly is None
+    det._change(5)  # declared again, not by the slow test
+    assert det.declared == FaultMode.from_name("r") and det.declared_slowly is None

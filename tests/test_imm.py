@@ -291,3 +291,53 @@ def test_rest_left_out_must_leave_the_base_whole_and_the_others_alike():
     uneven = np.array([[0, 0], [1, 0], [1, 1]], dtype=bool)
     with pytest.raises(ValueError, match="leaves as many"):
         ImmEstimator(UnscentedKalmanFilter(process), transition, rest_left_out=uneven)
+
+
+def test_a_mode_scored_beyond_the_leading_outputs_gains_only_their_marginal_ratio():
+    """Its eq. (25) is the first mode's plus the ratio of the two on the other outputs (scipy)."""
+    from scipy.stats import multivariate_normal
+
+    modes = [FaultMode(0), FaultMode.from_name("x"), FaultMode.from_name("p")]
+    process, _ = oscillator_bank()
+    model = MeasurementModel(
+        fault_mode_output(identity_output, modes, "zero"), np.eye(6) * SENSOR_SIGMA**2, name="imu"
+    )
+    transition = sticky_transition(3, 0.99)
+    beyond = np.zeros((3, 2), dtype=bool)
+    beyond[1] = True  # mode 1 is scored on outputs 2-5 alone
+    scored = ImmEstimator(UnscentedKalmanFilter(process), transition, scored_beyond=beyond)
+    plain = UnscentedKalmanFilter(process)
+    rng = np.random.default_rng(71)
+    mean, cov = rng.normal(size=6), np.eye(6) * 0.2
+    z = np.array([0.0, *rng.normal(size=5)])  # channel x reads zero: mode 1's failure
+    start = scored.initial_estimate(0.0, mean, cov)
+    est = scored.step(start, 0.1, np.zeros(0), Measurement(z, model))
+
+    prior = plain.initial_estimate(0.0, np.repeat(mean[None], 3, 0), np.repeat(cov[None], 3, 0))
+    filtered = plain.step(prior, 0.1, np.zeros(0), Measurement(z, model))
+    rest = [2, 3, 4, 5]
+
+    def marginal(j):
+        sub = filtered.innovation_cov[j][np.ix_(rest, rest)]
+        return multivariate_normal(np.zeros(4), sub).logpdf(filtered.innovation[j, rest])
+
+    expected = np.array(filtered.log_likelihood, dtype=float)
+    expected[1] = expected[0] + marginal(1) - marginal(0)
+    np.testing.assert_allclose(est.log_likelihoods, expected, rtol=1e-9)
+    # eq. (26) from equal odds through the chain: each mode's weight exp(its eq. 25)
+    weights = np.exp(expected - expected.max())
+    np.testing.assert_allclose(est.mode_probabilities, weights / weights.sum(), rtol=1e-9)
+    # unscored, the zero on x is mode 1's evidence and it leads; scored beyond, from the same
+    # prior, it predicts outputs 2-5 as mode 0 does and gains nothing
+    assert filtered.log_likelihood[1] > filtered.log_likelihood[0] + 1.0
+    assert est.mode_probabilities[1] == pytest.approx(est.mode_probabilities[0], rel=1e-9)
+
+
+def test_scored_beyond_flags_whole_rows_and_never_the_first_mode():
+    process, _ = oscillator_bank()
+    transition = sticky_transition(3, 0.99)
+    with pytest.raises(ValueError, match="first mode's flagging none"):
+        ImmEstimator(UnscentedKalmanFilter(process), transition, scored_beyond=np.eye(3, 2) > 0)
+    partial = np.array([[0, 0], [1, 0], [0, 0]], dtype=bool)
+    with pytest.raises(ValueError, match="all leading outputs or none"):
+        ImmEstimator(UnscentedKalmanFilter(process), transition, scored_beyond=partial)

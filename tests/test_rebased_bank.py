@@ -613,3 +613,20 @@ def test_a_rebased_bank_tests_a_further_failure_with_a_history_and_a_recovery_as
         weights = T[:, j] * seen / (T[:, j] @ seen)  # eq. (7)'s mu_{i|j}
         np.testing.assert_allclose(mixed[j, rows], weights @ means[:, rows], rtol=1e-6, atol=1e-7)
         assert (weights[j] > 0.5) == (further or j == 0)  # a further slot keeps its own history
+
+
+def test_only_the_recovery_of_a_channel_declared_on_the_fixes_is_scored_on_them():
+    # the bank about p+q, p declared on the fixes: the slot that trusts p again is scored on
+    # the GPS outputs alone, the one that trusts q again and the further failures on all; a
+    # named error held keeps it so
+    bank = build_estimator(
+        "imm", load_aircraft_params(), NedOrigin(47.4, 8.5, 150.0),
+        filter_model=RealAirModel(fault_signature="untrusted"),
+    ).rebased(FaultMode.from_channels(["p", "q"]), fix_scored=P)  # fmt: skip
+    beyond = bank.imm._scored_beyond
+    scored = [mode.name for mode, row in zip(bank.modes, beyond, strict=True) if row.any()]
+    assert scored == ["q"] and beyond.shape == (7, 6)  # p+q less p
+    held = bank.holding({3: (0.0, 0.0)})  # p named a bias
+    assert held is not bank and held.fix_scored == P
+    assert np.array_equal(held.imm._scored_beyond, beyond)
+    assert bank.rebased(P).imm._scored_beyond is None

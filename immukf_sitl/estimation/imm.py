@@ -209,6 +209,13 @@ class ImmEstimator:
     rest_left_out : ndarray of bool, optional
         ``(r, m)``: the leading outputs each mode leaves out; with it every updated step also
         gives each mode's evidence over the other outputs (:attr:`ImmEstimate.rest_ratios`).
+    scored_beyond : ndarray of bool, optional
+        ``(r, m)``: modes whose evidence is their likelihood of the outputs beyond the leading
+        ``m`` alone (the rows flag all ``m``; the first mode's row none). Over the leading
+        outputs such a mode is given the first mode's log-likelihood, so eq. (26) moves it
+        only on the rest (:func:`rest_log_likelihood_ratios`): a mode that trusts a channel
+        its state follows explains that channel's readings as well as any, whether the channel
+        is sound or not, and only the other outputs tell.
     """
 
     def __init__(
@@ -221,6 +228,7 @@ class ImmEstimator:
         history_states: slice | None = None,
         history_slots: np.ndarray | None = None,
         rest_left_out: np.ndarray | None = None,
+        scored_beyond: np.ndarray | None = None,
     ) -> None:
         transition = np.array(transition, dtype=float)
         if transition.ndim != 2 or transition.shape[0] != transition.shape[1]:
@@ -253,6 +261,14 @@ class ImmEstimator:
             if len(set(counts[counts > 0].tolist())) > 1:
                 raise ValueError("rest_left_out: every mode that leaves outputs out leaves as many")
             self._rest_left_out = left_out
+        self._scored_beyond = None
+        if scored_beyond is not None:
+            beyond = np.asarray(scored_beyond, dtype=bool)
+            if beyond.ndim != 2 or beyond.shape[0] != n_modes or beyond[0].any():
+                raise ValueError("scored_beyond: one row per mode, the first mode's flagging none")
+            if not all(row.all() or not row.any() for row in beyond):
+                raise ValueError("scored_beyond: a row flags all leading outputs or none")
+            self._scored_beyond = beyond if beyond.any() else None
         # a step with no more outputs than every scored mode leaves out scores nothing
         self._rest_from = 0
         if self._rest_left_out is not None and self._rest_left_out[1:].all():
@@ -269,6 +285,20 @@ class ImmEstimator:
     def diagnostics(self) -> FilterDiagnostics:
         """The bank's safeguard counters."""
         return self.ukf.diagnostics
+
+    def _beyond_scores(
+        self, log_likelihood: np.ndarray, innovation: np.ndarray, innovation_cov: np.ndarray
+    ) -> np.ndarray:
+        """``log_likelihood`` with the ``scored_beyond`` modes scored on the outputs beyond."""
+        assert self._scored_beyond is not None
+        beyond = self._scored_beyond
+        slots = beyond.any(axis=1)
+        gained = np.zeros(len(log_likelihood))
+        if innovation.shape[1] > beyond.shape[1]:  # a step of the leading outputs alone: none
+            gained = rest_log_likelihood_ratios(innovation, innovation_cov, beyond)[0]
+        out = np.array(log_likelihood, dtype=float)
+        out[slots] = out[0] + gained[slots]  # eq. (25) over the outputs beyond, as a ratio
+        return out
 
     def initial_estimate(
         self,
@@ -417,6 +447,9 @@ class ImmEstimator:
         ):
             assert scored_cov is not None
             rest = rest_log_likelihood_ratios(filtered.innovation, scored_cov, self._rest_left_out)
+        if self._scored_beyond is not None and filtered.updated:
+            assert filtered.innovation is not None and scored_cov is not None
+            log_likelihood = self._beyond_scores(log_likelihood, filtered.innovation, scored_cov)
         log_mu = np.empty(r)
         probs = np.empty(r)
         kern.imm_posterior(log_likelihood, log_c, self.probability_floor, log_mu, probs)  # eq. (26)

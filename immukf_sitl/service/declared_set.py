@@ -71,6 +71,10 @@ channel's failure: the mode ``D + c`` is always in the bank.
   failed channel leaves one slot ahead alone, while a fix that most slots predict better says
   that slot 0's model erred (a turn in moderate air). The event's probability is
   ``1 - exp(-evidence)``, and the re-based bank believes the declared set (its base at 0.99).
+  What the fixes declared, the fixes release: the re-based bank scores the slot that trusts
+  the channel again on the GPS outputs alone (:attr:`declared_slowly`), since a slot that
+  trusts a drifting channel moves its rate with it and explains its samples better than the
+  base still learning its offset (it took the lead within 0.3 s and the estimate was lost).
 - **Cannot isolate**: when slot 0 stays below ``1 - threshold`` for ``dwell_s`` while no other
   slot reaches ``threshold`` (the evidence is split between channels), an ``unisolated`` event
   names the channels in doubt, once until a declaration or until slot 0 recovers.
@@ -230,6 +234,15 @@ class DeclaredSetDetector:
     def declared(self) -> FaultMode | None:
         """The declared set (None: nothing)."""
         return FaultMode(self._bits) if self._bits else None
+
+    @property
+    def declared_slowly(self) -> FaultMode | None:
+        """The declared channels the slow test declared (None: none), released on the fixes.
+
+        Their recovery slots are scored on the GPS fix alone (:meth:`AircraftEstimator.rebased`).
+        """
+        bits = sum(1 << c for c in self._slowly)
+        return FaultMode(bits) if bits else None
 
     def named(self, channel: int, kind: str, size: float | None, t_s: float) -> None:
         """How declared ``channel`` was named to fail (its life is judged against it)."""

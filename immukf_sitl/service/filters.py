@@ -333,18 +333,24 @@ class AircraftEstimator(_Bank):
     filter_model: FilterModel
     dynamics: ModelDynamics
     sensors: SensorSpec
+    #: declared channels whose recovery slots are scored on the GPS fix alone (the slow test's)
+    fix_scored: FaultMode | None = None
 
-    def rebased(self, declared: FaultMode | None) -> AircraftEstimator:
+    def rebased(
+        self, declared: FaultMode | None, fix_scored: FaultMode | None = None
+    ) -> AircraftEstimator:
         """The same bank over the modes about ``declared`` (:func:`bank_modes`).
 
         The filters (their kernels and counters) and the model are shared; what changes is what
         each slot believes, its evidence and the Markov chain over the slots. Carry an estimate
-        across with :meth:`carried_over`.
+        across with :meth:`carried_over`. The slots that trust a channel of ``fix_scored``
+        again are scored on the GPS fix alone (``ImmEstimator``'s ``scored_beyond``): declared
+        on the fixes' evidence (a drift the state followed), its recovery is theirs to show.
         """
         if self.variant != "imm":
             raise ValueError(f"only the IMM re-bases, not {self.variant!r}")
         modes = bank_modes(declared)
-        return self._over(modes, self.dynamics.with_modes(modes))
+        return self._over(modes, self.dynamics.with_modes(modes), fix_scored)
 
     def holding(self, errors: Mapping[int, tuple[float | None, float | None]]) -> AircraftEstimator:
         """The same bank with declared channels' drift rates and gains held where known.
@@ -354,15 +360,21 @@ class AircraftEstimator(_Bank):
         held states at their values. Returns this bank where nothing changes.
         """
         dynamics = self.dynamics.holding(errors)
-        return self if dynamics is self.dynamics else self._over(self.modes, dynamics)
+        if dynamics is self.dynamics:
+            return self
+        return self._over(self.modes, dynamics, self.fix_scored)
 
-    def _over(self, modes: Sequence[FaultMode], dynamics: ModelDynamics) -> AircraftEstimator:
+    def _over(
+        self, modes: Sequence[FaultMode], dynamics: ModelDynamics, fix_scored: FaultMode | None
+    ) -> AircraftEstimator:
         """The bank of ``modes`` over ``dynamics``, its filters' counters carried on."""
         ukf = self.imm.ukf
         if dynamics.process is not ukf.process:  # the declared channels' error states
             ukf = UnscentedKalmanFilter(dynamics.process, ukf.scheme, ukf.noise_form, ukf.compiled)
             ukf.diagnostics = self.imm.ukf.diagnostics
-        return _assemble(self.variant, modes, ukf, dynamics, self.filter_model, self.sensors)
+        return _assemble(
+            self.variant, modes, ukf, dynamics, self.filter_model, self.sensors, fix_scored
+        )
 
     def carried_over(
         self, estimate: VariantEstimate, previous: AircraftEstimator
@@ -629,8 +641,13 @@ def _assemble(
     dynamics: ModelDynamics,
     filter_model: FilterModel,
     sensors: SensorSpec,
+    fix_scored: FaultMode | None = None,
 ) -> AircraftEstimator:
-    """The bank of ``ukf`` over ``modes``: its chain (eq. 3), evidence and output models."""
+    """The bank of ``ukf`` over ``modes``: its chain (eq. 3), evidence and output models.
+
+    A slot that trusts again a declared channel of ``fix_scored`` is scored on the GPS fix
+    alone (:meth:`AircraftEstimator.rebased`).
+    """
     floor = filter_model.probability_floor if len(modes) > 1 else 0.0
     # the modes that add a failure keep a history of their own, so a second failure is tested
     # as a first one is; a recovery slot mixes as the textbook does (with a history it followed
@@ -646,16 +663,20 @@ def _assemble(
             # test of service/declared_set.py, while nothing is declared)
             left_out = np.zeros((len(modes), N_IMU), dtype=bool)
             left_out[1:] = True
+    beyond = None
+    if fix_scored is not None and len(modes) > 1:
+        recovers = np.array([bool(modes[0].bits & ~m.bits & fix_scored.bits) for m in modes])
+        beyond = np.repeat(recovers[:, None], N_IMU, axis=1)
     imm = ImmEstimator(
         ukf, filter_model.transition(modes), floor, dynamics.gate(), history,
-        dynamics.history_states(), slots, rest_left_out=left_out,
+        dynamics.history_states(), slots, rest_left_out=left_out, scored_beyond=beyond,
     )  # fmt: skip
     imu_model, imu_gps_model, imu_gps_vd_model = aero_measurement_models(
         dynamics.flown, modes, sensors, filter_model.fault_signature, dynamics.offset
     )
     return AircraftEstimator(
         variant, tuple(modes), imm, imu_model, imu_gps_model, imu_gps_vd_model, filter_model,
-        dynamics, sensors,
+        dynamics, sensors, fix_scored,
     )  # fmt: skip
 
 

@@ -495,6 +495,11 @@ class EstimatorPipeline:
             cfg.variant, self.params, self.origin, cfg.true_mode, cfg.sensors, cfg.filter_model,
             declared if self.rebases else None,
         )  # fmt: skip
+        slowly = None
+        if isinstance(self.detector, DeclaredSetDetector):
+            slowly = self.detector.declared_slowly
+        if slowly is not None and isinstance(estimator, AircraftEstimator):
+            estimator = estimator.rebased(declared, slowly)  # released on the fixes, as before
         failed = declared.channels if declared is not None else ()
         # the alignment sample itself is the first step's measurement: start one period earlier
         nav = align(t_s - IMU_PERIOD_S, imu, gps, failed)
@@ -615,7 +620,7 @@ class EstimatorPipeline:
         """
         assert isinstance(self.estimator, AircraftEstimator) and self.estimate is not None
         assert isinstance(self.detector, DeclaredSetDetector)
-        rebased = self.estimator.rebased(self.detector.declared)
+        rebased = self.estimator.rebased(self.detector.declared, self.detector.declared_slowly)
         since = self.detector.failing_since_s if declared else None
         steps = [] if since is None else self._recent.taken_by(self.estimator, since)
         self._recent.clear()
