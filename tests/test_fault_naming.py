@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 
@@ -617,3 +618,88 @@ def test_recorded_failures_are_named_through_the_prediction_error_they_were_read
             break
     assert names[-1].kind == kind, names
     assert names[-1].size == pytest.approx(size, rel=size_error), names
+
+
+# -- the flight's own change of roughness ------------------------------------------------------
+
+
+def _moving_air(rng, seconds, start_s, roughening=1.0):
+    """A rate swinging by 0.1 rad/s at 0.2 Hz in air ``roughening`` times as rough as before."""
+    n = int(round(100 * seconds))
+    t = start_s + 0.01 * np.arange(n)
+    smooth = 0.12 + 0.1 * np.sin(2.0 * np.pi * 0.2 * (t - 30.0))
+    truth = smooth + roughening * AIR_ROUGHNESS * SIGMA * rng.standard_normal(n)
+    return t, smooth, truth + SIGMA * rng.standard_normal(n)
+
+
+def test_a_bias_in_a_flight_that_roughened_is_a_bias_once_the_healthy_channels_say_so():
+    # after the declaration the air (or the autopilot) makes every channel 1.3 times as rough
+    # over the 15 s of a last look: 4 sigmas of the ratio's sampling spread, which alone reads
+    # the bias's channel as a noise of factor 4-5 or a gain of 1.2. With the healthy channels'
+    # spread of ln 1.3 the roughness is no evidence, and the residual (constant, where a gain's
+    # follows the 0.1 rad/s swing) names the bias; a true gain of 1.3 in the same flight is
+    # still a gain
+    spread = math.log(1.3)
+    for seed in range(8):
+        rng = np.random.default_rng(500 + seed)
+        t_before, _, healthy_before = _moving_air(rng, 10.0, 19.0)
+        baseline = roughness(t_before, healthy_before)
+        t, smooth, healthy = _moving_air(rng, 15.0, 30.0, roughening=1.3)
+        h = smooth + PRED_SIGMA * rng.standard_normal(t.size)
+        s2 = np.full(t.size, S2[0] + (AIR_ROUGHNESS * SIGMA) ** 2)
+        flight = dataclasses.replace(baseline, spread=spread)
+        unaware = second_look(t, healthy + 0.036, h, s2, SIGMA, baseline=baseline)
+        assert unaware.kind in ("noise", "scale"), (seed, unaware)
+        biased = second_look(t, healthy + 0.036, h, s2, SIGMA, baseline=flight)
+        assert biased.kind == "bias", (seed, biased)
+        assert biased.size == pytest.approx(0.036, rel=0.05), (seed, biased)
+        scaled = second_look(t, 1.3 * healthy, h, s2, SIGMA, baseline=flight)
+        assert scaled.kind == "scale", (seed, scaled)
+        assert scaled.size == pytest.approx(1.3, rel=0.05), (seed, scaled)
+
+
+def test_the_flight_spread_is_the_healthy_channels_rms_change_of_roughness():
+    # six white channels; after the declaration of channel 3 the healthy ones 1, 2 and 4 read
+    # 1.5 times as rough and 5 two-thirds as rough (ln ratios +-0.405), the declared one 5
+    # times and channel 0, declared before and not released, 10 times. Over 15 s against 10 s
+    # each ratio's sampling sigma is 0.066 in ln: the spread is 0.405 within 0.07, the two
+    # declared channels left out; once channel 0 is released it counts, ln 10 among five
+    rng = np.random.default_rng(700)
+    sigmas = np.array([0.03, 0.03, 0.03, SIGMA, SIGMA, SIGMA])
+    factors = np.array([10.0, 1.5, 1.5, 5.0, 1.5, 1.0 / 1.5])
+    namer = FaultNamer(sigmas)
+    t_before = 19.0 + 0.01 * np.arange(1100)
+    for tk in t_before:
+        namer.record(tk, sigmas * rng.standard_normal(6))
+    namer.declared(0, 0, t_before[-1])
+    namer.declared(0, 3, t_before[-1])
+    t = t_before[-1] + 0.01 * np.arange(1, 1501)
+    for tk in t:
+        namer.record(tk, factors * sigmas * rng.standard_normal(6))
+    assert namer.flight_spread(3, t_before[-1], t[-1]) == pytest.approx(math.log(1.5), abs=0.07)
+    namer.released(0)
+    with_zero = math.sqrt((4 * math.log(1.5) ** 2 + math.log(10.0) ** 2) / 5)
+    assert namer.flight_spread(3, t_before[-1], t[-1]) == pytest.approx(with_zero, abs=0.07)
+
+
+def test_a_roughening_below_the_smallest_detectable_noise_names_no_noise():
+    # still air: the channel reads the sensor's noise about a moving rate, and its ten seconds
+    # before the failure were smoother than its spec sheet (0.7 sigma): against them a bias's
+    # readings are 1.43 times as rough, 5 sigmas of the ratio, the widening of a noise of
+    # factor sqrt(1 + 0.49 (1.43^2 - 1)) = 1.23, below MIN_NOISE_FACTOR: it is named the bias.
+    # A noise of factor 3 on the same channel is still named a noise
+    for seed in range(5):
+        rng = np.random.default_rng(800 + seed)
+        t_before = 19.0 + 0.01 * np.arange(1000)
+        baseline = roughness(t_before, 0.12 + 0.7 * SIGMA * rng.standard_normal(1000))
+        t, truth, h, healthy = _flight(rng)
+        t5 = 30.0 + 0.01 * np.arange(500)
+        truth5 = 0.12 + 0.1 * np.sin(2.0 * np.pi * 0.7 * (t5 - 30.0))
+        h5 = truth5 + PRED_SIGMA * rng.standard_normal(500)
+        z5 = truth5 + SIGMA * rng.standard_normal(500) + 0.05
+        s2 = np.full(500, S2[0])
+        biased = second_look(t5, z5, h5, s2, SIGMA, baseline=baseline)
+        assert biased.kind == "bias", (seed, biased)
+        noisy = truth5 + 3.0 * SIGMA * rng.standard_normal(500)
+        named = second_look(t5, noisy, h5, s2, SIGMA, baseline=baseline)
+        assert named.kind == "noise", (seed, named)

@@ -33,7 +33,7 @@ import numpy as np
 
 from immukf_sitl.estimation.fault_modes import IMU_CHANNELS
 from immukf_sitl.fault_kinds import spike_schedule
-from immukf_sitl.models.sensors import DETECTABLE_SIGMAS, ImuSpec
+from immukf_sitl.models.sensors import DETECTABLE_SIGMAS, MIN_NOISE_FACTOR, ImuSpec
 from immukf_sitl.scenario import FaultSpec
 
 __all__ = [
@@ -49,11 +49,6 @@ __all__ = [
 
 #: Width of the band around zero, in standard deviations of the sensor noise.
 DEFAULT_N_SIGMA = DETECTABLE_SIGMAS
-#: A noise fault whose sigma factor is at most this is within what one IMU sample can show: a
-#: factor k puts 1 sample in ``2 (1 - Phi(n_sigma / k))`` beyond ``n_sigma`` noise sigmas of
-#: the healthy reading, one a second at 100 Hz and n_sigma 5 for k = 5 / 2.58 = 1.94 (the
-#: healthy sensor: one in 1.7 million samples).
-MIN_NOISE_FACTOR = 2.0
 #: How long a deviation stays beyond the band to be observable (s), the issue's "sustained
 #: briefly": ten samples of the 100 Hz IMU, twice the default airframe's roll subsidence time
 #: constant at cruise (0.047 s) and half its pitch damping's (0.20 s). A shorter excursion is the

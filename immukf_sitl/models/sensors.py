@@ -23,6 +23,7 @@ __all__ = [
     "DETECTABLE_SIGMAS",
     "IMU_PERIOD_S",
     "IMU_RATE_HZ",
+    "MIN_NOISE_FACTOR",
     "NOMINAL_GROUND_SPEED_MPS",
     "GpsSpec",
     "ImuSpec",
@@ -32,6 +33,11 @@ __all__ = [
 #: A fault is detectable once it moves its channel beyond this many of
 #: :attr:`ImuSpec.band_sigmas` (one sample in 1.7 million of a healthy sensor's noise).
 DETECTABLE_SIGMAS = 5.0
+#: A noise fault whose sigma factor is at most this is within what one IMU sample can show: a
+#: factor k puts 1 sample in ``2 (1 - Phi(n / k))`` beyond ``n`` noise sigmas of the healthy
+#: reading, one a second at 100 Hz with ``n = DETECTABLE_SIGMAS`` for k = 5 / 2.58 = 1.94 (the
+#: healthy sensor: one in 1.7 million samples).
+MIN_NOISE_FACTOR = 2.0
 #: Rate of the IMU, of the simulation step and of the filter step (Hz).
 IMU_RATE_HZ = 100.0
 #: One IMU period (s): the simulation's and the filter's time step.

@@ -93,6 +93,7 @@ failure is named by every kind over the second look's seconds.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections import deque
 from dataclasses import dataclass
@@ -100,6 +101,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import minimize_scalar
 from scipy.stats import chi2, norm, poisson
+
+from immukf_sitl.models.sensors import MIN_NOISE_FACTOR
 
 __all__ = [
     "NAMING_WINDOW_S",
@@ -209,7 +212,7 @@ def classify_failure(
         ]  # fmt: skip
     elif texture.spike_size is not None:
         return FailureName("spikes", texture.spike_size)
-    elif texture.rough:  # a noise, or a gain above 1, which roughens the readings too
+    elif _rougher(texture, baseline, r):  # a noise, or a gain above 1, which roughens too
         return _noise_or_gain(e, h, s2, r, texture, baseline)
     else:  # the residual names an offset or a gain; the roughness weighs a gain against them
         loose = _LoosePrediction(h, s2, r)
@@ -231,6 +234,18 @@ def classify_failure(
         factor = _roughness_factor(t, z, r)
         return FailureName("noise", best[3] if factor is None else factor)
     return FailureName(best[2], best[3])
+
+
+def _rougher(texture: _Texture, baseline: Roughness, r: float) -> bool:
+    """Whether the readings are rougher than a healthy channel's by a detectable noise's worth.
+
+    A widening that a noise of at most :data:`MIN_NOISE_FACTOR` would explain is one no sample
+    shows (the smallest detectable noise): it names no noise, and a bias, a drift or a gain is
+    weighed with the roughness instead. On the tuning draw a calm x accelerometer's 1.9 m/s^2
+    bias roughened its readings by ``e^0.31`` against a baseline below the sensor's own noise
+    (``sqrt(6 R)``), a noise of 1.19 by the ratio, and the second look named it that.
+    """
+    return texture.rough and baseline.factor(texture.log_ratio, r) > MIN_NOISE_FACTOR
 
 
 def _noise_or_gain(
@@ -286,11 +301,17 @@ class Roughness:
     :data:`SPIKE_SIGMAS` of it. A healthy sensor's is its noise's ``sqrt(6 R)`` plus what the
     air adds (on z in moderate turbulence about ten times that); a bias, a drift or a spike
     train keeps it (a median ignores a few spikes), a gain scales it and a noise widens it.
+
+    ``spread``, on a channel's roughness before its failure, is how far the healthy channels'
+    roughness moved over the seconds being named, against theirs over the same seconds before
+    (the rms of their ``ln`` ratios; :meth:`FaultNamer.flight_spread`): the flight's own
+    change, which the sampling spread of a ratio leaves out. 0: not known.
     """
 
     sigma: float
     count: int
     outliers: int
+    spread: float = 0.0
 
     def factor(self, log_ratio: float, r: float) -> float:
         """The noise factor that widens this roughness by ``exp(log_ratio)`` (at least 1).
@@ -340,18 +361,23 @@ def _texture(t: np.ndarray, z: np.ndarray, baseline: Roughness) -> _Texture | No
     """The readings' :class:`_Texture` against ``baseline`` (None: they have no roughness).
 
     The ratio's sigma is the two robust sigmas' sampling spread (:data:`_MAD_LOG_VARIANCE`
-    over the effective count of each). A spike of size ``A`` puts ``A, -2A, A`` in the second
-    differences; the count beyond :data:`SPIKE_SIGMAS` is tested against a Poisson count at
-    the healthy channel's rate (half an outlier added, so that a baseline without one does
+    over the effective count of each), or the baseline's ``spread`` where the healthy channels'
+    own ratios spread wider over the same seconds: after a declaration the autopilot flies on
+    a new estimate and the air changes (over the 15 s after an x-accelerometer declaration in
+    the tuning draw's moderate air a healthy roll gyro's roughness moved by ``e^-0.25``, four
+    sampling sigmas). A spike of size ``A`` puts ``A, -2A, A`` in the second differences;
+    the count beyond :data:`SPIKE_SIGMAS` is tested against a Poisson count at the healthy
+    channel's rate (half an outlier added, so that a baseline without one does
     not call every outlier a spike), and the spikes' size is half the median peak.
     """
     now = roughness(t, z)
     if now is None:
         return None
     log_ratio = math.log(now.sigma / baseline.sigma)
-    sigma = math.sqrt(
+    sampling = math.sqrt(
         _MAD_LOG_VARIANCE / _SECOND_DIFFERENCE_DOF * (1.0 / now.count + 1.0 / baseline.count)
     )
+    sigma = max(sampling, baseline.spread)
     second = _second_differences(t, z)
     threshold = SPIKE_SIGMAS * max(now.sigma, baseline.sigma)
     beyond = np.abs(second) > threshold
@@ -513,7 +539,9 @@ def second_look(
         raise ValueError(f"second_look: expected at least 3 samples, got {n}")
     e = z - h
     texture = None if baseline is None else _texture(t, z, baseline)
-    if texture is not None and (texture.rough or texture.spike_size is not None):
+    if texture is not None and (
+        _rougher(texture, baseline, noise_sigma**2) or texture.spike_size is not None
+    ):
         return classify_failure(t, z, h, s2, noise_sigma, baseline=baseline)
     prediction_sigma = math.sqrt(max(float(np.mean(s2)) - noise_sigma**2, 0.0))
     if texture is None:
@@ -616,8 +644,12 @@ class FaultNamer:
         self.second_look_s = second_look_s
         self.last_look_s = last_look_s
         self._pending: dict[int, tuple[int, float]] = {}  # channel -> mode slot, declared at
-        self._recent: deque[tuple[float, np.ndarray]] = deque()  # (t, readings) of BASELINE_S
+        # (t, readings) of the BASELINE_S before a declaration and the seconds of its looks
+        self._recent: deque[tuple[float, np.ndarray]] = deque()
         self._baselines: dict[int, Roughness | None] = {}  # channel -> roughness before it
+        # channel -> every channel's roughness over the seconds of its baseline
+        self._flight_baselines: dict[int, list[Roughness | None]] = {}
+        self._failed: set[int] = set()  # channels declared and not released
         self._samples: dict[int, list[tuple[float, float, float, float]]] = {}
         self._first: dict[int, FailureName] = {}  # channel -> first name, waiting for a second look
         self._last: dict[int, str] = {}  # channel -> the bias or drift its last look re-reads
@@ -628,9 +660,13 @@ class FaultNamer:
         return bool(self._pending)
 
     def record(self, t_s: float, imu: np.ndarray) -> None:
-        """Keep this step's readings for the roughness of a channel declared later."""
+        """Keep this step's readings for the roughness of a channel declared later.
+
+        They are kept over the seconds of a last look too, for :meth:`flight_spread`.
+        """
         self._recent.append((t_s, np.array(imu, dtype=float)))
-        while self._recent and t_s - self._recent[0][0] > BASELINE_S + BASELINE_GUARD_S:
+        keep_s = BASELINE_S + BASELINE_GUARD_S + max(self.last_look_s, self.second_look_s)
+        while self._recent and t_s - self._recent[0][0] > keep_s:
             self._recent.popleft()
 
     def declared(self, mode_index: int, channel: int, t_s: float) -> None:
@@ -641,8 +677,45 @@ class FaultNamer:
         """
         self._pending[channel] = (mode_index, t_s)
         self._samples[channel] = []
-        before = [(t, v[channel]) for t, v in self._recent if t <= t_s - BASELINE_GUARD_S]
-        self._baselines[channel] = roughness(*zip(*before, strict=True)) if before else None
+        self._failed.add(channel)
+        before = [
+            (t, v) for t, v in self._recent
+            if t <= t_s - BASELINE_GUARD_S and t_s - t <= BASELINE_S + BASELINE_GUARD_S
+        ]  # fmt: skip
+        if before:
+            times = np.array([t for t, _ in before])
+            readings = np.array([v for _, v in before])
+            self._flight_baselines[channel] = [roughness(times, c) for c in readings.T]
+        else:
+            self._flight_baselines[channel] = [None] * len(self.noise_sigmas)
+        self._baselines[channel] = self._flight_baselines[channel][channel]
+
+    def released(self, channel: int) -> None:
+        """The detector released ``channel``: forget its naming; its roughness is healthy again."""
+        self.cancel(channel)
+        self._failed.discard(channel)
+
+    def flight_spread(self, channel: int, since_s: float, t_s: float) -> float:
+        """How far healthy channels' roughness moved over ``(since_s, t_s]`` (rms ``ln`` ratio).
+
+        Each channel neither ``channel`` nor declared is read over those seconds against its
+        roughness over the seconds of ``channel``'s baseline: the flight's own change of
+        roughness, beside which a failed channel's ratio says a gain or a noise. 0: none known.
+        """
+        bases = self._flight_baselines.get(channel)
+        window = [(t, v) for t, v in self._recent if since_s < t <= t_s + 1e-9]
+        if bases is None or len(window) < 5:
+            return 0.0
+        times = np.array([t for t, _ in window])
+        readings = np.array([v for _, v in window])
+        ratios = []
+        for j, base in enumerate(bases):
+            if j == channel or j in self._failed or base is None:
+                continue
+            now = roughness(times, readings[:, j])
+            if now is not None:
+                ratios.append(math.log(now.sigma / base.sigma))
+        return math.sqrt(float(np.mean(np.square(ratios)))) if ratios else 0.0
 
     def looking(self, channel: int) -> bool:
         """Whether ``channel``'s failure waits to be named, or to be looked at again.
@@ -661,6 +734,7 @@ class FaultNamer:
             self._first.pop(c, None)
             self._last.pop(c, None)
             self._baselines.pop(c, None)
+            self._flight_baselines.pop(c, None)
 
     def observe(
         self, t_s: float, imu: np.ndarray, innovations: np.ndarray, variances: np.ndarray
@@ -690,6 +764,8 @@ class FaultNamer:
             t, zs, hs, s2 = (np.array(c) for c in zip(*samples, strict=True))
             sigma = float(self.noise_sigmas[i])
             baseline = self._baselines.get(i)
+            if baseline is not None:
+                baseline = dataclasses.replace(baseline, spread=self.flight_spread(i, since, t_s))
             band = None if self.bands is None else float(self.bands[i])
             if looking_last:
                 named = self._last[i]

@@ -570,7 +570,7 @@ class EstimatorPipeline:
         for k, event in enumerate(events):
             channel = int(np.flatnonzero(event.mode.healthy_mask == 0.0)[0])
             if event.kind == "cleared":
-                self._namer.cancel(channel)
+                self._namer.released(channel)
             elif event.kind == "detected" and not self.rebases:
                 events[k] = dataclasses.replace(event, failure="zero")  # what the test showed
             elif event.kind == "detected":
