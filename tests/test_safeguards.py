@@ -13,6 +13,7 @@ from immukf_sitl.estimation import (
 )
 from immukf_sitl.estimation.diagnostics import FilterDiagnostics
 from immukf_sitl.estimation.linalg import robust_cholesky
+from immukf_sitl.estimation.sigma_points import JulierSigmaPoints
 
 
 def _finite(est):
@@ -117,3 +118,38 @@ def test_a_non_finite_update_resets_the_filter_to_its_prior_and_is_counted():
     np.testing.assert_array_equal(est.mean, x0)
     np.testing.assert_array_equal(est.cov, P0)
     assert np.all(est.log_likelihood == -np.inf)
+
+
+def test_an_update_that_leaves_a_negative_variance_resets_the_filter_and_is_counted():
+    # an output that grows with the distance from the mean, under a negative central weight
+    # (Julier, kappa = -2 over four states): the unscented P_zz has a negative eigenvalue, so
+    # no update from it is a covariance; the filter keeps x(k|k), P(k|k) with likelihood zero
+    sys = constant_velocity()
+    m0 = np.array([1.0, 2.0, 0.0, 0.0])
+    R = np.eye(2) * 1e-2
+
+    def away(t, x, u, w):
+        distance = np.sqrt(sum((x[i] - m0[i]) ** 2 for i in range(4)))
+        return np.stack([x[0] + distance, x[1]]) + (0.0 if w is None else w)
+
+    scheme = JulierSigmaPoints(kappa=-2.0)
+    ukf = UnscentedKalmanFilter(sys.process(), scheme, noise_form="additive")
+    P0 = np.eye(4)
+    est = ukf.step(ukf.initial_estimate(0.0, m0[None], P0[None]), 0.1, np.zeros(0),
+                   Measurement(m0[:2].copy(), MeasurementModel(away, R)))  # fmt: skip
+
+    # the same unscented transform, by hand, about the filter's prediction
+    pred_mean = sys.F @ m0
+    pred_cov = sys.F @ P0 @ sys.F.T + sys.G @ sys.Q @ sys.G.T
+    w = scheme.weights(4)
+    columns = w.spread * np.linalg.cholesky(pred_cov)
+    points = np.column_stack([pred_mean, pred_mean[:, None] + columns, pred_mean[:, None] - columns])
+    z = away(0.1, points, None, None)
+    z_mean = z @ w.mean_weights
+    P_zz = (z - z_mean[:, None]) * w.cov_weights @ (z - z_mean[:, None]).T + R
+    assert np.linalg.eigvalsh(P_zz).min() < 0.0
+
+    assert ukf.diagnostics.indefinite_state_reset == 1
+    np.testing.assert_array_equal(est.mean[0], m0)
+    np.testing.assert_array_equal(est.cov[0], P0)
+    assert est.log_likelihood[0] == -np.inf

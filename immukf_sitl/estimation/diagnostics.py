@@ -31,6 +31,9 @@ class FilterDiagnostics:
         they are still used (the IMM needs their low likelihood) but counted.
     nonfinite_state_reset : int
         Mode-matched estimates that became non-finite and were reset to the mixed prior.
+    indefinite_state_reset : int
+        Mode-matched estimates whose updated covariance had a negative variance (the update
+        of a filter far from its measurement) and were reset to the mixed prior.
     """
 
     steps: int = 0
@@ -40,6 +43,7 @@ class FilterDiagnostics:
     skipped_nonfinite_measurement: int = 0
     outlier_innovations: int = 0
     nonfinite_state_reset: int = 0
+    indefinite_state_reset: int = 0
 
     def as_dict(self) -> dict[str, int]:
         """The counters as a plain dictionary (for JSON and stats lines)."""

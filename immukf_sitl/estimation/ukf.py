@@ -42,6 +42,9 @@ from immukf_sitl.estimation.sigma_points import JulierSigmaPoints, SigmaPointSch
 NoiseForm = Literal["augmented", "additive"]
 #: Tail probability beyond which an innovation is counted as an outlier (it is still used).
 OUTLIER_TAIL_PROBABILITY = 1e-9
+#: an updated variance may fall below zero by this share of its prediction (round-off of
+#: ``P - K P_zz K'`` in double precision, with room), not more
+_ROUND_OFF = 1e-6
 
 
 @lru_cache(maxsize=64)
@@ -409,9 +412,19 @@ class UnscentedKalmanFilter:
         diag.symmetrised += 2 * batch  # P_zz and P(k+1|k+1), symmetric by construction
         diag.outlier_innovations += int(np.count_nonzero(nis > outlier_nis_threshold(nz)))
 
-        if n_nonfinite:  # reset those filters to x(k|k), P(k|k); their likelihood is zero
+        bad = np.zeros(batch, dtype=bool)
+        if n_nonfinite:
             bad = ~(np.isfinite(new_mean).all(axis=1) & np.isfinite(new_cov).all(axis=(1, 2)))
             diag.nonfinite_state_reset += int(np.count_nonzero(bad))
+        # an update only takes variance away: one below zero beyond round-off is a filter whose
+        # sigma points no longer describe it (a heading half a turn off, its course wrapped)
+        new_var = np.diagonal(new_cov, axis1=1, axis2=2)
+        pred_var = np.diagonal(pred_cov, axis1=1, axis2=2)
+        lost = ~bad & ~(new_var >= -_ROUND_OFF * np.abs(pred_var)).all(axis=1)
+        if lost.any():
+            diag.indefinite_state_reset += int(np.count_nonzero(lost))
+            bad |= lost
+        if bad.any():  # reset those filters to x(k|k), P(k|k); their likelihood is zero
             new_mean[bad] = np.where(np.isfinite(mean[bad]), mean[bad], 0.0)
             new_cov[bad] = np.where(np.isfinite(sym[bad]), sym[bad], 0.0)
             log_likelihood[bad] = -np.inf
