@@ -143,7 +143,8 @@ def test_an_update_that_leaves_a_negative_variance_resets_the_filter_and_is_coun
     pred_cov = sys.F @ P0 @ sys.F.T + sys.G @ sys.Q @ sys.G.T
     w = scheme.weights(4)
     columns = w.spread * np.linalg.cholesky(pred_cov)
-    points = np.column_stack([pred_mean, pred_mean[:, None] + columns, pred_mean[:, None] - columns])
+    centre = pred_mean[:, None]
+    points = np.column_stack([pred_mean, centre + columns, centre - columns])
     z = away(0.1, points, None, None)
     z_mean = z @ w.mean_weights
     P_zz = (z - z_mean[:, None]) * w.cov_weights @ (z - z_mean[:, None]).T + R
