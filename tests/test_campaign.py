@@ -199,6 +199,8 @@ def test_quick_matched_filter_and_imm_maintain_flight(quick) -> None:
     assert all(r["identified_within_1s"] == "true" for r in imm)
     assert all(r["false_declarations"] == "0" for r in imm)
     assert max(float(r["est_att_max_deg"]) for r in ukf1 + imm) < 5.0
+    # no mode-matched update of these flights needed a reset
+    assert all(r["filter_resets"] == "0" for r in ukf1 + imm), [r["filter_resets"] for r in imm]
 
 
 @pytest.mark.slow
@@ -915,11 +917,13 @@ def test_a_pair_runs_row_names_its_second_fault_and_single_rows_leave_it_empty(
 
 @pytest.mark.parametrize(
     "missing",
-    [campaign_run.CONSISTENCY_COLUMNS,
-     campaign_run.CONSISTENCY_COLUMNS + campaign_run.AFTER_DECLARATION_COLUMNS,
-     campaign_run.CONSISTENCY_COLUMNS + campaign_run.PAIR_COLUMNS
+    [campaign_run.RESET_COLUMNS,
+     campaign_run.RESET_COLUMNS + campaign_run.CONSISTENCY_COLUMNS,
+     campaign_run.RESET_COLUMNS + campaign_run.CONSISTENCY_COLUMNS
+     + campaign_run.AFTER_DECLARATION_COLUMNS,
+     campaign_run.RESET_COLUMNS + campaign_run.CONSISTENCY_COLUMNS + campaign_run.PAIR_COLUMNS
      + campaign_run.AFTER_DECLARATION_COLUMNS],
-    ids=["before-consistency", "before-survival", "before-pairs"],
+    ids=["before-resets", "before-consistency", "before-survival", "before-pairs"],
 )  # fmt: skip
 def test_a_runs_csv_written_before_later_columns_still_reads(
     tmp_path: Path, missing: tuple[str, ...]

@@ -93,6 +93,7 @@ COLUMNS: tuple[str, ...] = (
     "declarations",
     "declared_at_end",
     "realignments",
+    "filter_resets",
     "error",
 )
 #: the columns pair runs added: a ``runs.csv`` written before them still reads, with them empty
@@ -101,12 +102,16 @@ PAIR_COLUMNS = (*_SECOND_FAULT_COLUMNS, "declared_at_end")
 AFTER_DECLARATION_COLUMNS = ("est_att_mse_after_decl_deg2", "est_pos_max_after_decl_m")
 #: the column the attitude's consistency after a declaration added
 CONSISTENCY_COLUMNS = ("est_att_nees_after_decl",)
+#: the column the filters' resets added: mode-matched updates that came out non-finite or with
+#: a negative variance and were reset (``FilterDiagnostics``), since the last alignment
+RESET_COLUMNS = ("filter_resets",)
 _OLDER_HEADERS = tuple(
     tuple(c for c in COLUMNS if c not in added)
     for added in (
-        CONSISTENCY_COLUMNS,
-        CONSISTENCY_COLUMNS + AFTER_DECLARATION_COLUMNS,
-        CONSISTENCY_COLUMNS + AFTER_DECLARATION_COLUMNS + PAIR_COLUMNS,
+        RESET_COLUMNS,
+        RESET_COLUMNS + CONSISTENCY_COLUMNS,
+        RESET_COLUMNS + CONSISTENCY_COLUMNS + AFTER_DECLARATION_COLUMNS,
+        RESET_COLUMNS + CONSISTENCY_COLUMNS + AFTER_DECLARATION_COLUMNS + PAIR_COLUMNS,
     )
 )
 RUNS_CSV = "runs.csv"
@@ -143,6 +148,19 @@ def _identity(spec: RunSpec) -> dict[str, object]:
         "air": spec.air,
         "filter_model": spec.filter_model,
     }
+
+
+def filter_resets(run: InProcessRun) -> int | None:
+    """Mode-matched updates the flight's filter reset (non-finite, or a negative variance).
+
+    Counted since the last alignment (a re-alignment builds a new bank: ``realignments``);
+    None where no bank is running at the end.
+    """
+    estimator = run.pipeline.estimator
+    if estimator is None:
+        return None
+    diagnostics = estimator.diagnostics
+    return diagnostics.nonfinite_state_reset + diagnostics.indefinite_state_reset
 
 
 def run_filter_model(spec: RunSpec) -> FilterModel:
@@ -186,6 +204,7 @@ def execute_run(spec: RunSpec) -> dict[str, str]:
         row["failure_t_s"] = monitor.t_s
         row["flown_s"] = run.records[-1].time_s if run.records else 0.0
         row["realignments"] = run.pipeline.counters.realignments
+        row["filter_resets"] = filter_resets(run)
         row["error"] = ""
     except Exception as exc:  # noqa: BLE001 - a failed run is recorded, the campaign goes on
         row["status"] = "error"
@@ -206,8 +225,8 @@ def _row_of(future: Future, spec: RunSpec) -> dict[str, str]:
 def read_rows(path: Path) -> list[dict[str, str]]:
     """The rows of a ``runs.csv`` (empty if there is none).
 
-    A file written before :data:`PAIR_COLUMNS`, :data:`AFTER_DECLARATION_COLUMNS` or
-    :data:`CONSISTENCY_COLUMNS` existed reads with those cells empty.
+    A file written before :data:`PAIR_COLUMNS`, :data:`AFTER_DECLARATION_COLUMNS`,
+    :data:`CONSISTENCY_COLUMNS` or :data:`RESET_COLUMNS` existed reads with those cells empty.
     """
     if not path.exists():
         return []
