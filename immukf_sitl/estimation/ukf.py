@@ -416,8 +416,8 @@ class UnscentedKalmanFilter:
         if n_nonfinite:
             bad = ~(np.isfinite(new_mean).all(axis=1) & np.isfinite(new_cov).all(axis=(1, 2)))
             diag.nonfinite_state_reset += int(np.count_nonzero(bad))
-        # an update only takes variance away: one below zero beyond round-off is a filter whose
-        # sigma points no longer describe it (a heading half a turn off, its course wrapped)
+        # an update only takes variance away: one below zero beyond round-off is a filter far
+        # from its measurement (traced: a heading half a turn off at a GPS fix)
         new_var = np.diagonal(new_cov, axis1=1, axis2=2)
         pred_var = np.diagonal(pred_cov, axis1=1, axis2=2)
         lost = ~bad & ~(new_var >= -_ROUND_OFF * np.abs(pred_var)).all(axis=1)
