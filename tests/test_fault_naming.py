@@ -246,6 +246,7 @@ def _named(channel, t, z, h, s2, bands=None, last_look_s=0.0):
         imu = np.zeros(6)
         imu[channel] = z[k]
         nu[0, channel] = z[k] - h[k]
+        var[0, channel] = s2[k]
         got += [(k, name) for c, name in namer.observe(t[k], imu, nu, var) if c == channel]
     assert not namer.pending
     return got
@@ -266,6 +267,37 @@ def test_a_drift_too_slow_for_five_seconds_is_named_at_the_last_look():
         pulled = h + 0.3 * (1.0 - np.exp(-(t - t[0]) / 3.0))
         bias = _named(3, t, healthy + 0.3, pulled, s2, last_look_s=15.0)
         assert bias[-1][0] <= 500 and bias[-1][1].kind == "bias", (seed, bias)
+
+
+def test_a_ramp_of_the_settling_prediction_is_renamed_a_bias_at_the_last_look():
+    # a bias of 0.3 rad/s read against a re-based prediction that settles from 0.1 above the
+    # truth (time constant 1.5 s): over the second look's 5 s the residual rises away from zero
+    # by 0.08, beyond the drift rule's 3 prediction sigmas (0.06), and names a drift; over 15 s
+    # the line through it moves by 0.05 (0.48 of the settling's size, against 0.82 over 5 s),
+    # and the last look names the bias and its size
+    for seed in range(4):
+        rng = np.random.default_rng(120 + seed)
+        t, truth, h, healthy, s2 = _slow_flight(rng, 16.0)
+        settling = h + 0.1 * np.exp(-(t - t[0]) / 1.5)
+        names = _named(3, t, healthy + 0.3, settling, s2, last_look_s=15.0)
+        assert [(k, n.kind) for k, n in names] == [(100, "bias"), (500, "drift"), (1500, "bias")]
+        assert names[-1][1].size == pytest.approx(0.3, rel=0.05), (seed, names)
+
+
+def test_a_drift_keeps_its_name_while_its_ramp_goes_on():
+    # a drift of 0.015 rad/s/s named at its second look; from 6 s on the prediction's variance
+    # is five times wider (a later re-base), so that over 15 s the drift rule's 3 prediction
+    # sigmas (0.27) exceed the ramp (0.22) and the whole window alone would name a bias. Its
+    # line still moves the channel three times as far as over the first 5 s: a drift, as named
+    for seed in range(3):
+        rng = np.random.default_rng(140 + seed)
+        t, truth, h, healthy, s2 = _slow_flight(rng, 16.0)
+        wide = np.where(t - t[0] > 6.0, 25.0 * s2, s2)
+        z = healthy + 0.015 * (t - 27.0)
+        assert second_look(t, z, h, wide, SIGMA).kind == "bias", seed
+        names = _named(3, t, z, h, wide, last_look_s=15.0)
+        assert [n.kind for _, n in names] in (["drift"], ["bias", "drift"]), (seed, names)
+        assert names[-1][0] <= 500, (seed, names)
 
 
 def _wander(rng, n, sigma, tau_s):

@@ -82,7 +82,13 @@ gain, a drift gets the rate of those seconds. The re-based prediction wanders of
 by about its own sigma for seconds at a time, and over five seconds that wander's slope can
 be as large as the drift's (a pitch-gyro drift of -0.015 rad/s^2 in light air read -0.030);
 a line's slope through a wander shorter than the window errs as its length to the power
--1.5, five times less over fifteen seconds (that drift then read -0.021).
+-1.5, five times less over fifteen seconds (that drift then read -0.021). A drift's ramp
+goes on, so the line through the whole window moves the channel further than the second
+look's did (three times as far at a steady rate); a settling prediction's does not (for an
+exponential settling of time constant 1.5 s, 0.48 of its size over fifteen seconds against
+0.82 over five). A drift whose ramp the whole window does not carry on is named by what that
+window shows: a pitch-gyro bias of 0.036 rad/s in moderate air read as a drift of 0.019
+rad/s^2 over five seconds and as a bias of 0.036 over fifteen.
 
 A name whose fitted deviation from the healthy reading stays inside the band a healthy sensor
 reads off the truth (``bands``: 5 sigmas of noise and turn-on bias, the band that defines a
@@ -564,6 +570,17 @@ def second_look(
     return FailureName(best[2], best[3])
 
 
+def _ramp_goes_on(t: np.ndarray, e: np.ndarray, s2: np.ndarray, ramp: float) -> bool:
+    """Whether the line through the residual ``e`` moves it further than ``ramp``, its way.
+
+    ``ramp``: how far a drift's line moved the channel over its second look. A drift's goes on
+    (over three times the seconds, three times as far); the ramp of a prediction settling
+    after the re-base stops.
+    """
+    slope = _line(t, e, s2)[2]
+    return slope * ramp > 0.0 and abs(slope) * float(t[-1] - t[0]) > abs(ramp)
+
+
 def _scale(e: np.ndarray, h: np.ndarray, s2: np.ndarray) -> tuple[float, int, str, float]:
     w = 1.0 / s2
     denominator = float(np.sum(w * h * h))
@@ -610,7 +627,7 @@ class FaultNamer:
     :func:`second_look` names it otherwise (a drift: again, with the rate of the seconds); a
     noise is named again with its factor over those seconds. A bias or a drift is then looked
     at a last time at ``last_look_s``: a bias renamed where that finds a drift or a gain, a
-    drift given the rate of those seconds.
+    drift given the rate of those seconds, or named by them where its ramp did not go on.
 
     Parameters
     ----------
@@ -652,7 +669,8 @@ class FaultNamer:
         self._failed: set[int] = set()  # channels declared and not released
         self._samples: dict[int, list[tuple[float, float, float, float]]] = {}
         self._first: dict[int, FailureName] = {}  # channel -> first name, waiting for a second look
-        self._last: dict[int, str] = {}  # channel -> the bias or drift its last look re-reads
+        # channel -> the bias or drift its last look re-reads, and a drift's ramp at the second
+        self._last: dict[int, tuple[str, float]] = {}
 
     @property
     def pending(self) -> bool:
@@ -722,7 +740,7 @@ class FaultNamer:
 
         A bias or a drift waiting for its last look is not: a bias's name is final unless that
         look finds a drift or a gain, which it then names anew, and a drift's is final but for
-        its rate, read again over the look's seconds.
+        its rate, read again over the look's seconds, unless its ramp stopped.
         """
         return channel in self._pending and channel not in self._last
 
@@ -768,11 +786,13 @@ class FaultNamer:
                 baseline = dataclasses.replace(baseline, spread=self.flight_spread(i, since, t_s))
             band = None if self.bands is None else float(self.bands[i])
             if looking_last:
-                named = self._last[i]
+                named, ramp = self._last[i]
                 self.cancel(i)
                 last = second_look(t, zs, hs, s2, sigma, band, baseline)
-                # a bias is named anew by a drift or a gain; a drift keeps its name, not its rate
-                if last.kind == "drift" if named == "drift" else last.kind != "bias":
+                # a bias is named anew by a drift or a gain; a drift keeps its name, not its
+                # rate, while its ramp goes on
+                stopped = named == "drift" and not _ramp_goes_on(t, zs - hs, s2, ramp)
+                if last.kind == "drift" or last.kind != named and (named == "bias" or stopped):
                     out.append((i, last))
                 continue
             if looking_again:
@@ -791,7 +811,8 @@ class FaultNamer:
                 if again.kind != first.kind or again.kind == "drift":
                     out.append((i, again))
                 if again.kind in ("bias", "drift") and self.last_look_s > self.second_look_s:
-                    self._last[i] = again.kind
+                    ramp = again.size * float(t[-1] - t[0]) if again.kind == "drift" else 0.0
+                    self._last[i] = (again.kind, ramp)
                 else:
                     self.cancel(i)
                 continue
