@@ -54,7 +54,10 @@ def test_every_sample_sent_is_estimated_when_the_estimator_is_behind(tmp_path: P
     assert backlog_steps > BEHIND_STEPS, (summary["lag_us"], summary["step_us"])
     assert summary["stream"]["estimator"]["imu_samples"] == sent, summary["stream"]["estimator"]
     assert summary["stream"]["estimator"]["steps"] == sent
-    assert "the estimator catching up" in run.stderr, run.stderr[-2000:]
+    # "the estimator catching up" is printed only if serve is still behind when run starts to
+    # wait for it, after the sim has exited; how long that exit takes is the machine's (a CI
+    # run whose serve lagged 0.39-0.50 s through the flight had caught up by then), so the
+    # contract is the samples estimated above and the output to the flight's end below
     assert "output stopped at" not in run.stderr, run.stderr[-2000:]
     est = read_estimator_log(str(tmp_path / "estimator.tlog"))
     assert est.attitude_t_s[-1] == pytest.approx(DURATION_S, abs=0.5 / IMU_HZ)
