@@ -75,6 +75,10 @@ channel's failure: the mode ``D + c`` is always in the bank.
   the channel again on the GPS outputs alone (:attr:`declared_slowly`), since a slot that
   trusts a drifting channel moves its rate with it and explains its samples better than the
   base still learning its offset (it took the lead within 0.3 s and the estimate was lost).
+  The fixes also arbitrate the probabilities: while the window puts a slot at ``_REST_NATS``
+  ahead of the slot the probabilities lead, that one's declaration waits, and the slow test
+  waits only for its own slot's lead (a drifting roll gyro and the lateral accelerometer run
+  close at the fixes, and the IMU samples after a fix tipped the lead to the one behind).
 - **Cannot isolate**: when slot 0 stays below ``1 - threshold`` for ``dwell_s`` while no other
   slot reaches ``threshold`` (the evidence is split between channels), an ``unisolated`` event
   names the channels in doubt, once until a declaration or until slot 0 recovers.
@@ -442,6 +446,8 @@ class DeclaredSetDetector:
             leaders.append(handed)
         for j in leaders:
             channel = j - 1
+            if self._fixes_contradict(j):
+                continue
             if self._shows_failure(j, channel, failure_weights):
                 failed = self._failed_since if self._failed_since is not None else math.inf
                 self.failing_since_s = min(self._since.get(j, math.inf), failed)
@@ -516,26 +522,57 @@ class DeclaredSetDetector:
         """The slot its evidence at the GPS fixes declares, and that evidence in nats.
 
         Only while nothing is declared (a re-based bank's slots have no history of their own),
-        and only while no slot holds the threshold: where the probabilities see the failure,
-        their tests decide once the slot has learnt its channel's offset over the dwell
-        (declared at the fix that first put it in the lead, a p drift's slot was re-based with
-        its offset unlearnt, the slot that trusted p again won within 0.1 s, and five channels
-        followed; with only that slot left out, the runner-up was declared slowly in its
-        place). The module docstring says the rule.
+        and only while that slot does not hold the threshold itself: where the probabilities
+        see its failure, their tests decide once the slot has learnt its channel's offset over
+        the dwell (declared at the fix that first put it in the lead, a p drift's slot was
+        re-based with its offset unlearnt, the slot that trusted p again won within 0.1 s, and
+        five channels followed; with only that slot left out, the runner-up was declared slowly
+        in its place). Another slot's lead does not stop it: the window puts that slot behind
+        this one, so its own declaration waits (:meth:`_fixes_contradict`). The module
+        docstring says the rule.
         """
-        if self._bits or not self._rest or np.max(probabilities[1:]) >= self.config.threshold:
+        if self._bits or not self._rest:
             return None
+        sums = self._fix_sums()
+        order = np.argsort(sums)[::-1]
+        best, second = int(order[0]), int(order[1])
+        if probabilities[best] >= self.config.threshold:
+            return None
+        if sums[best] >= _REST_NATS and sums[best] - sums[second] >= self._sustained_nats:
+            return best, float(sums[best])
+        return None
+
+    def _fix_sums(self) -> np.ndarray:
+        """``(7,)``: each slot's evidence over slot 0 at the window's fixes, beyond the others'.
+
+        -inf for slot 0 and for a slot that does not fit the fixes itself (its normalised
+        innovations squared beyond the chi-square quantile ``signature_quantile``).
+        """
         sums = np.sum([ratios for _, ratios, _, _ in self._rest], axis=0)
         nis = np.sum([n for _, _, n, _ in self._rest], axis=0)
         dof = sum(d for _, _, _, d in self._rest)
         sums[0] = -math.inf
         # the slot must fit the fixes itself, not only less badly than slot 0
         sums[nis > _chi2_quantile(self.config.signature_quantile, dof)] = -math.inf
-        order = np.argsort(sums)[::-1]
-        best, second = int(order[0]), int(order[1])
-        if sums[best] >= _REST_NATS and sums[best] - sums[second] >= self._sustained_nats:
-            return best, float(sums[best])
-        return None
+        return sums
+
+    def _fixes_contradict(self, j: int) -> bool:
+        """Whether the fixes' window puts another slot at the slow test's level ahead of ``j``.
+
+        Only while nothing is declared, as the slow test. A drifting roll gyro and the lateral
+        accelerometer, which reads the roll error the drift makes, run close at the fixes
+        (a calm p drift of the tuning draw: 109.1 and 104.3 nats over the window, slot p
+        ahead) and the IMU samples after a fix can tip the probabilities to either: slot p,
+        at its probability floor until the fix, still learns its channel's offset, while
+        slot y has learnt the one the roll error puts on its accelerometer (y declared, the
+        estimate lost). The slot the fixes put ahead holds the wrong one's declaration; the
+        next fix's window decides, or the probabilities turn.
+        """
+        if self._bits or not self._rest:
+            return False
+        sums = self._fix_sums()
+        ahead = float(np.max(np.delete(sums, j)))
+        return ahead >= _REST_NATS and ahead > sums[j]
 
     def _sustained(self, j: int) -> bool:
         """Whether slot ``j`` out-scored slot 0 over the window without its best sample.
